@@ -1,0 +1,351 @@
+"""Scene configuration: typed dataclasses with SI units, loaded from YAML.
+
+A scene file has the sections ``cloth``, ``material``, ``pins``, ``simulation``
+and ``solver`` (see ``config/scenes/hang_two_corners.yaml`` for every field with
+its unit).  Loading is strict: a missing required field, an unknown field, a
+value of the wrong type or out of range raises :class:`SceneError` whose message
+names the field by its dotted path (``material.density``).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = [
+    "SceneError", "ClothConfig", "MaterialConfig", "PinConfig",
+    "SimulationConfig", "SolverConfig", "SceneConfig",
+    "load_scene", "scene_from_dict", "scene_to_dict", "apply_overrides",
+    "find_scene_file", "builtin_scene_names", "scenes_directory",
+]
+
+
+class SceneError(ValueError):
+    """A scene file or override is malformed; the message names the field."""
+
+
+def _spec(kind: str, unit: str = "", *, gt: float | None = None,
+          ge: float | None = None, le: float | None = None,
+          choices: tuple = (), doc: str = "", **kw):
+    """Field metadata: value kind, unit, bounds and a one-line description."""
+    return field(metadata=dict(kind=kind, unit=unit, gt=gt, ge=ge, le=le,
+                               choices=choices, doc=doc), **kw)
+
+
+@dataclass(frozen=True)
+class ClothConfig:
+    """Rectangular cloth and its 4-8 mesh."""
+
+    width: float = _spec("float", "m", gt=0, doc="size along u")
+    height: float = _spec("float", "m", gt=0, doc="size along v")
+    base_blocks: tuple = _spec("int2", "", ge=1,
+                               doc="square blocks along u and v of the level-0 mesh")
+    level: int = _spec("int", "", ge=0, le=12, default=0,
+                       doc="uniform bisection level (2 levels halve the edge length)")
+    origin: tuple = _spec("vec3", "m", default=(0.0, 0.0, 1.0),
+                          doc="world position of material point (0, 0)")
+    u_axis: tuple = _spec("unit3", "", default=(1.0, 0.0, 0.0),
+                          doc="world direction of increasing u at the start")
+    v_axis: tuple = _spec("unit3", "", default=(0.0, 1.0, 0.0),
+                          doc="world direction of increasing v at the start")
+
+
+@dataclass(frozen=True)
+class MaterialConfig:
+    """Baraff–Witkin material in SI units (per unit rest area where it applies)."""
+
+    density: float = _spec("float", "kg/m^2", gt=0, default=0.2, doc="areal density")
+    stretch_stiffness: float = _spec("float", "N/m", ge=0, default=2000.0,
+                                     doc="k_s of the u and v stretch conditions")
+    shear_stiffness: float = _spec("float", "N/m", ge=0, default=200.0,
+                                   doc="k_sh of the shear condition")
+    bend_stiffness: float = _spec("float", "N*m", ge=0, default=2e-4,
+                                  doc="k_b of the bend condition (bending rigidity)")
+    stretch_damping: float = _spec("float", "s", ge=0, default=0.01,
+                                   doc="Rayleigh coefficient: damping = this * stiffness")
+    shear_damping: float = _spec("float", "s", ge=0, default=0.01, doc="as stretch_damping")
+    bend_damping: float = _spec("float", "s", ge=0, default=0.1, doc="as stretch_damping")
+    air_drag: float = _spec("float", "1/s", ge=0, default=0.05,
+                            doc="drag force = -air_drag * mass * velocity")
+
+
+@dataclass(frozen=True)
+class PinConfig:
+    """A material point held at a target (by default where it starts)."""
+
+    uv: tuple = _spec("vec2", "m", doc="material coordinates of the pinned point")
+    name: str = _spec("str", default="", doc="label (defaults to pin<index>)")
+    waypoints: tuple = _spec("waypoints", "s, m", default=(),
+                             doc="[[t, x, y, z], ...] target path, linear between points")
+    release_time: float | None = _spec("float?", "s", ge=0, default=None,
+                                       doc="simulation time at which the pin lets go")
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    time_step: float = _spec("float", "s", gt=0, le=1.0, doc="implicit Euler step h")
+    duration: float = _spec("float", "s", ge=0, doc="simulated time of a run")
+    gravity: tuple = _spec("vec3", "m/s^2", default=(0.0, 0.0, -9.81))
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    method: str = _spec("str", choices=("pcg", "direct"), default="pcg",
+                        doc="pcg: filtered block-Jacobi PCG; direct: sparse LU of the "
+                            "projected system (baseline)")
+    tolerance: float = _spec("float", "", gt=0, le=0.5, default=1e-4,
+                             doc="relative residual in the preconditioned norm")
+    max_iterations: int = _spec("int", "", ge=1, default=2000)
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    cloth: ClothConfig = _spec("section")
+    simulation: SimulationConfig = _spec("section")
+    name: str = _spec("str", default="scene")
+    description: str = _spec("str", default="")
+    material: MaterialConfig = _spec("section", default_factory=MaterialConfig)
+    pins: tuple = _spec("pins", default=())
+    solver: SolverConfig = _spec("section", default_factory=SolverConfig)
+
+
+_SECTION_TYPES = {"cloth": ClothConfig, "simulation": SimulationConfig,
+                  "material": MaterialConfig, "solver": SolverConfig}
+
+
+def _number(value: Any, path: str, integer: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SceneError(f"field '{path}' must be a number, got {value!r}")
+    if integer and not float(value).is_integer():
+        raise SceneError(f"field '{path}' must be an integer, got {value!r}")
+    if not math.isfinite(value):
+        raise SceneError(f"field '{path}' must be finite, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def _vector(value: Any, path: str, length: int) -> tuple:
+    if not isinstance(value, (list, tuple)) or len(value) != length:
+        raise SceneError(f"field '{path}' must be a list of {length} numbers, got {value!r}")
+    return tuple(_number(v, f"{path}[{i}]") for i, v in enumerate(value))
+
+
+def _check_bounds(value, meta: dict, path: str) -> None:
+    unit = f" {meta['unit']}" if meta["unit"] else ""
+    items = value if isinstance(value, tuple) else (value,)
+    for item in items:
+        if meta["gt"] is not None and not item > meta["gt"]:
+            raise SceneError(f"field '{path}' must be > {meta['gt']}{unit}, got {value!r}")
+        if meta["ge"] is not None and not item >= meta["ge"]:
+            raise SceneError(f"field '{path}' must be >= {meta['ge']}{unit}, got {value!r}")
+        if meta["le"] is not None and not item <= meta["le"]:
+            raise SceneError(f"field '{path}' must be <= {meta['le']}{unit}, got {value!r}")
+
+
+def _convert(value: Any, meta: dict, path: str, section_type=None):
+    kind = meta["kind"]
+    if kind == "section":
+        return _build(section_type, value, path)
+    if kind == "float?" and value is None:
+        return None
+    if kind in ("float", "float?"):
+        out = _number(value, path)
+    elif kind == "int":
+        out = _number(value, path, integer=True)
+    elif kind == "int2":
+        out = tuple(int(_number(v, f"{path}[{i}]", integer=True))
+                    for i, v in enumerate(_vector(value, path, 2)))
+    elif kind == "vec2":
+        out = _vector(value, path, 2)
+    elif kind == "vec3":
+        out = _vector(value, path, 3)
+    elif kind == "unit3":
+        vec = _vector(value, path, 3)
+        norm = math.sqrt(sum(c * c for c in vec))
+        if norm == 0.0:
+            raise SceneError(f"field '{path}' must be a non-zero direction")
+        out = tuple(c / norm for c in vec)
+    elif kind == "str":
+        if not isinstance(value, str):
+            raise SceneError(f"field '{path}' must be a string, got {value!r}")
+        out = value
+        if meta["choices"] and value not in meta["choices"]:
+            raise SceneError(f"field '{path}' must be one of {list(meta['choices'])}, "
+                             f"got {value!r}")
+    elif kind == "waypoints":
+        if not isinstance(value, (list, tuple)):
+            raise SceneError(f"field '{path}' must be a list of [t, x, y, z]")
+        out = tuple(_vector(p, f"{path}[{i}]", 4) for i, p in enumerate(value))
+        times = [p[0] for p in out]
+        if any(b <= a for a, b in zip(times, times[1:])):
+            raise SceneError(f"field '{path}' times must increase strictly")
+    elif kind == "pins":
+        if not isinstance(value, (list, tuple)):
+            raise SceneError(f"field '{path}' must be a list of pins")
+        out = tuple(_build(PinConfig, p, f"{path}[{i}]") for i, p in enumerate(value))
+        out = tuple(p if p.name else dataclasses.replace(p, name=f"pin{i}")
+                    for i, p in enumerate(out))
+        names = [p.name for p in out]
+        if len(set(names)) != len(names):
+            raise SceneError(f"field '{path}' has duplicate pin names {names}")
+    else:  # pragma: no cover - programming error
+        raise AssertionError(kind)
+    _check_bounds(out, meta, path)
+    return out
+
+
+def _build(cls, data: Any, path: str):
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise SceneError(f"field '{path}' must be a mapping, got {data!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    prefix = f"{path}." if path else ""
+    for key in data:
+        if key not in fields:
+            raise SceneError(f"unknown field '{prefix}{key}' "
+                             f"(expected one of: {', '.join(fields)})")
+    kwargs = {}
+    for name, f in fields.items():
+        sub = f"{prefix}{name}"
+        if name not in data:
+            if (f.default is dataclasses.MISSING
+                    and f.default_factory is dataclasses.MISSING):
+                raise SceneError(f"missing field '{sub}'")
+            continue
+        kwargs[name] = _convert(data[name], f.metadata, sub, _SECTION_TYPES.get(name))
+    return cls(**kwargs)
+
+
+def scene_from_dict(data: Any) -> SceneConfig:
+    """Validate a parsed scene mapping and build a :class:`SceneConfig`."""
+    scene = _build(SceneConfig, data, "")
+    cloth = scene.cloth
+    side_u = cloth.width / cloth.base_blocks[0]
+    side_v = cloth.height / cloth.base_blocks[1]
+    if not math.isclose(side_u, side_v, rel_tol=1e-12):
+        raise SceneError(
+            f"field 'cloth.base_blocks' must make square blocks: width/blocks_u = "
+            f"{side_u} m but height/blocks_v = {side_v} m")
+    dot = sum(a * b for a, b in zip(cloth.u_axis, cloth.v_axis))
+    if abs(dot) > 1e-9:
+        raise SceneError("field 'cloth.v_axis' must be perpendicular to 'cloth.u_axis'")
+    for i, pin in enumerate(scene.pins):
+        u, v = pin.uv
+        if not (0.0 <= u <= cloth.width and 0.0 <= v <= cloth.height):
+            raise SceneError(f"field 'pins[{i}].uv' = {pin.uv} lies outside the "
+                             f"{cloth.width} x {cloth.height} m cloth")
+    return scene
+
+
+def scene_to_dict(scene: SceneConfig) -> dict:
+    """Plain mapping (lists, floats) that :func:`scene_from_dict` accepts back."""
+    def plain(value):
+        if dataclasses.is_dataclass(value):
+            return {f.name: plain(getattr(value, f.name))
+                    for f in dataclasses.fields(value)}
+        if isinstance(value, tuple):
+            return [plain(v) for v in value]
+        return value
+    return plain(scene)
+
+
+def apply_overrides(data: dict, overrides: list[str] | dict) -> dict:
+    """Return a copy of a raw scene mapping with ``key=value`` overrides set.
+
+    Keys are dotted paths (``material.density``, ``cloth.base_blocks``); values
+    are parsed as YAML (``0.3``, ``[8, 8]``, ``false``).  The result still goes
+    through :func:`scene_from_dict`, so a bad value is refused there.
+    """
+    out = copy.deepcopy(data)
+    items = overrides.items() if isinstance(overrides, dict) else (
+        _split_override(o) for o in overrides)
+    for key, value in items:
+        parts = key.split(".")
+        node = out
+        for i, part in enumerate(parts[:-1]):
+            child = node.get(part) if isinstance(node, dict) else None
+            if child is None:
+                child = node[part] = {}
+            if not isinstance(child, dict):
+                raise SceneError(f"cannot set '{key}': '{'.'.join(parts[:i + 1])}' "
+                                 "is not a section")
+            node = child
+        node[parts[-1]] = value
+    return out
+
+
+def _split_override(text: str):
+    if "=" not in text:
+        raise SceneError(f"override {text!r} must look like key=value")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    if not key:
+        raise SceneError(f"override {text!r} has an empty key")
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        raise SceneError(f"override {text!r}: value is not valid YAML ({exc})") from exc
+    return key, value
+
+
+def scenes_directory() -> Path:
+    """Directory of the built-in scenes (installed share/ or the source tree)."""
+    candidates = []
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if prefix:
+            candidates.append(Path(prefix) / "share" / "cloth_lod_ros" / "config" / "scenes")
+    candidates.append(Path(__file__).resolve().parent.parent / "config" / "scenes")
+    candidates.append(Path(sys.prefix) / "share" / "cloth_lod_ros" / "config" / "scenes")
+    for path in candidates:
+        if path.is_dir():
+            return path
+    raise SceneError("built-in scene directory not found (is the package installed?)")
+
+
+def builtin_scene_names() -> list[str]:
+    return sorted(p.stem for p in scenes_directory().glob("*.yaml"))
+
+
+def find_scene_file(scene: str | os.PathLike) -> Path:
+    """Resolve a built-in scene name or a YAML file path."""
+    path = Path(scene)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        if not path.is_file():
+            raise SceneError(f"scene file {str(path)!r} does not exist")
+        return path
+    candidate = scenes_directory() / f"{scene}.yaml"
+    if not candidate.is_file():
+        raise SceneError(f"unknown scene {str(scene)!r}; built-in scenes: "
+                         f"{', '.join(builtin_scene_names())}")
+    return candidate
+
+
+def load_scene(scene: str | os.PathLike,
+               overrides: list[str] | dict | None = None) -> SceneConfig:
+    """Load a scene by built-in name or path, apply overrides, validate.
+
+    Raises:
+        SceneError: unreadable YAML, or any field missing, unknown, of the wrong
+            type or out of range (the message names it).
+    """
+    path = find_scene_file(scene)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{path}: not valid YAML ({exc})") from exc
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read ({exc})") from exc
+    if not isinstance(data, dict):
+        raise SceneError(f"{path}: a scene file must be a mapping of sections")
+    if overrides:
+        data = apply_overrides(data, overrides)
+    data.setdefault("name", path.stem)
+    return scene_from_dict(data)

@@ -1,0 +1,285 @@
+"""Baraff–Witkin cloth conditions as resolution-independent energy densities.
+
+Everything here is vectorised over triangles and hinges (no per-element Python
+loop).  Units are SI: positions in m, velocities in m/s, forces in N, energies
+in J.  References: Baraff & Witkin, "Large steps in cloth simulation" (1998),
+§4.2–4.5 (conditions, forces, damping), §5 (implicit step); the seed paper §5
+(bend condition C = θ); DESIGN.md §2 (energies as discretised densities).
+
+Conditions (``A`` = rest area of the triangle in m², ``w_u``/``w_v`` = the
+deformation gradient's columns, see :func:`precompute`):
+
+* stretch  ``C_u = √A (|w_u| − 1)``, ``C_v = √A (|w_v| − 1)``,
+  energy ``k_s/2 (C_u² + C_v²)``; ``k_s`` in N/m.  Because ``C² ∝ A`` a uniform
+  strain gives the same total energy at every level.
+* shear    ``C_s = √A (w_u · w_v)``, energy ``k_sh/2 C_s²``; ``k_sh`` in N/m.
+* bend     ``C_b = √c_e θ`` per interior edge (θ = signed angle between the two
+  normals), energy ``k_b/2 c_e θ²``; ``k_b`` in N·m (J).  The weight
+  ``c_e = γ |e|² / (A₁ + A₂)`` with ``γ = ½`` on a side where the edge is the
+  triangle's hypotenuse and ``1`` where it is a leg.  On a 4-8 mesh this makes
+  ``c_e = 1`` for every hinge type and the hinge sum isotropic: a cylinder of
+  radius R gets ``k_b/2 · R⁻² · area`` as the level grows (the missing hinges of
+  the border strip make a deficit of order one edge length).
+
+Damping is Rayleigh-like along each condition (BW §4.5):
+``f_d = −β k ∇C Ċ`` with ``β`` in seconds, plus air drag ``−c_air m v``.
+
+Jacobians (what the implicit solve keeps; DESIGN.md §2–3):
+
+* stretch: full ``−k (∇C ∇Cᵀ + C ∇²C)`` but with ``C`` clamped to ``≥ 0`` in the
+  second term (a compressed triangle would make it indefinite);
+* shear and bend: the Gauss–Newton part ``−k ∇C ∇Cᵀ`` only; ``C ∇²C`` is
+  indefinite for any sign of C and is dropped (it vanishes at rest);
+* damping: ``∂f_d/∂v = −β k ∇C ∇Cᵀ`` (exact); ``∂f_d/∂x`` is dropped (BW §5.2,
+  it is non-symmetric).
+
+So every kept block is negative semi-definite and the system matrix
+``M − h ∂f/∂v − h² ∂f/∂x`` is symmetric positive definite.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .mesh48 import RestMesh
+
+__all__ = ["Elements", "Evaluation", "precompute", "evaluate", "hinge_angles"]
+
+
+@dataclass(frozen=True)
+class Elements:
+    """Per-element rest data for one mesh topology (recomputed on topology change).
+
+    Attributes:
+        triangles: ``(t, 3)`` vertex indices.
+        area: ``(t,)`` rest areas, m².
+        coef_u, coef_v: ``(t, 3)`` coefficients (1/m) with
+            ``w_u = Σ_k coef_u[k] x_k`` and ``w_v = Σ_k coef_v[k] x_k``.
+        hinge_vertices: ``(h, 4)`` ``(e0, e1, o0, o1)``: shared edge then the
+            opposite vertex of each triangle.
+        hinge_weight: ``(h,)`` dimensionless ``c_e`` (see module docstring).
+        vertex_count: number of vertices.
+    """
+
+    triangles: np.ndarray
+    area: np.ndarray
+    coef_u: np.ndarray
+    coef_v: np.ndarray
+    hinge_vertices: np.ndarray
+    hinge_weight: np.ndarray
+    vertex_count: int
+
+
+def precompute(mesh: RestMesh) -> Elements:
+    """Rest-state coefficients of every triangle and hinge of ``mesh``.
+
+    With rest differences ``Δu_k = u_k − u_0``, ``Δv_k = v_k − v_0`` the map
+    ``[w_u w_v] = [Δx_1 Δx_2] [[Δu_1 Δu_2], [Δv_1 Δv_2]]⁻¹`` (BW §4.2) is linear
+    in the three positions; its coefficients are stored once per topology.
+    """
+    uv, tri = mesh.uv, mesh.triangles
+    d1 = uv[tri[:, 1]] - uv[tri[:, 0]]
+    d2 = uv[tri[:, 2]] - uv[tri[:, 0]]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    a1, a2 = d2[:, 1] / det, -d1[:, 1] / det
+    b1, b2 = -d2[:, 0] / det, d1[:, 0] / det
+    coef_u = np.column_stack([-(a1 + a2), a1, a2])
+    coef_v = np.column_stack([-(b1 + b2), b1, b2])
+    area = 0.5 * det
+
+    hinges = mesh.hinges()
+    edge_vec = uv[hinges.edge[:, 1]] - uv[hinges.edge[:, 0]]
+    pair_area = area[hinges.triangles].sum(axis=1)
+    gamma = np.where(hinges.is_hypotenuse, 0.5, 1.0).mean(axis=1)
+    weight = gamma * np.einsum("ij,ij->i", edge_vec, edge_vec) / pair_area
+    return Elements(
+        triangles=tri.copy(), area=area, coef_u=coef_u, coef_v=coef_v,
+        hinge_vertices=np.column_stack([hinges.edge, hinges.opposite]),
+        hinge_weight=weight, vertex_count=mesh.vertex_count)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("...i,...i->...", a, b)
+
+
+def hinge_angles(x: np.ndarray, hinge_vertices: np.ndarray,
+                 with_gradient: bool = False):
+    """Signed dihedral angles θ (rad) of the hinges, and optionally ∂θ/∂x.
+
+    θ is the angle between the normals of triangles ``(e0, e1, o0)`` and
+    ``(e1, e0, o1)``, from ``atan2(sin, cos)`` so it is exact near 0 and ±π.
+    The gradient (Bridson et al. 2003): ``∂θ/∂o_k = ±n̂_k / h_k`` (h_k the height
+    of o_k over the edge) and the edge vertices take minus the
+    projection-weighted sum, so the four gradients add up to zero.
+
+    Returns:
+        ``theta`` ``(h,)`` and, if requested, ``grad`` ``(h, 4, 3)`` in 1/m.
+    """
+    e0, e1, o0, o1 = (x[hinge_vertices[:, k]] for k in range(4))
+    edge = e1 - e0
+    edge_len2 = _dot(edge, edge)
+    edge_len = np.sqrt(edge_len2)
+    n0 = np.cross(edge, o0 - e0)
+    n1 = np.cross(o1 - e0, edge)
+    n0_len2, n1_len2 = _dot(n0, n0), _dot(n1, n1)
+    n0_hat = n0 / np.sqrt(n0_len2)[:, None]
+    n1_hat = n1 / np.sqrt(n1_len2)[:, None]
+    sin_t = _dot(np.cross(n0_hat, n1_hat), edge) / edge_len
+    cos_t = _dot(n0_hat, n1_hat)
+    theta = np.arctan2(sin_t, cos_t)
+    if not with_gradient:
+        return theta
+    g_o0 = -(edge_len / n0_len2)[:, None] * n0
+    g_o1 = -(edge_len / n1_len2)[:, None] * n1
+    t0 = (_dot(o0 - e0, edge) / edge_len2)[:, None]
+    t1 = (_dot(o1 - e0, edge) / edge_len2)[:, None]
+    grad = np.stack([-((1 - t0) * g_o0 + (1 - t1) * g_o1),
+                     -(t0 * g_o0 + t1 * g_o1), g_o0, g_o1], axis=1)
+    return theta, grad
+
+
+@dataclass
+class Evaluation:
+    """Internal forces of the cloth at one state.
+
+    Attributes:
+        force: ``(n, 3)`` elastic + damping forces in N (no gravity or drag).
+        stretch_energy, shear_energy, bend_energy: J.
+        max_strain: largest ``| |w| − 1 |`` over triangles and directions.
+        stiffness_times_velocity: ``(n, 3)`` ``(∂f/∂x) v`` with the kept
+            Jacobian, in N/s (the ``h² K v`` term of the right-hand side).
+        triangle_blocks: ``(t, 3, 3, 3, 3)`` blocks ``[i, j]`` of
+            ``−(stiffness_weight ∂f/∂x + damping_weight ∂f/∂v)``, or ``None``.
+        hinge_blocks: ``(h, 4, 4, 3, 3)`` same for hinges, or ``None``.
+        hinge_angle: ``(h,)`` θ in rad; ``hinge_rate``: ``(h,)`` dθ/dt in rad/s.
+    """
+
+    force: np.ndarray
+    stretch_energy: float
+    shear_energy: float
+    bend_energy: float
+    max_strain: float
+    stiffness_times_velocity: np.ndarray
+    triangle_blocks: np.ndarray | None
+    hinge_blocks: np.ndarray | None
+    hinge_angle: np.ndarray
+    hinge_rate: np.ndarray
+
+
+def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
+             stiffness_weight: float = 0.0, damping_weight: float = 0.0,
+             with_blocks: bool = True) -> Evaluation:
+    """Forces, energies and system-matrix blocks of all conditions.
+
+    Args:
+        elements: rest data from :func:`precompute`.
+        material: object with ``stretch_stiffness``, ``shear_stiffness`` (N/m),
+            ``bend_stiffness`` (N·m), ``stretch_damping``, ``shear_damping``,
+            ``bend_damping`` (s).
+        x, v: ``(n, 3)`` positions (m) and velocities (m/s).
+        stiffness_weight, damping_weight: the blocks returned are
+            ``−(stiffness_weight·∂f/∂x + damping_weight·∂f/∂v)``; the implicit
+            step uses ``h²`` and ``h``.
+        with_blocks: skip the blocks (forces and energies only).
+    """
+    n = elements.vertex_count
+    tri = elements.triangles
+    ks, ksh, kb = (material.stretch_stiffness, material.shear_stiffness,
+                   material.bend_stiffness)
+    bs, bsh, bb = (material.stretch_damping, material.shear_damping,
+                   material.bend_damping)
+    cu, cv, area = elements.coef_u, elements.coef_v, elements.area
+    sqrt_area = np.sqrt(area)
+
+    xt, vt = x[tri], v[tri]                         # (t, 3, 3)
+    wu = np.einsum("tk,tkd->td", cu, xt)
+    wv = np.einsum("tk,tkd->td", cv, xt)
+    wu_dot = np.einsum("tk,tkd->td", cu, vt)
+    wv_dot = np.einsum("tk,tkd->td", cv, vt)
+    len_u = np.sqrt(_dot(wu, wu))
+    len_v = np.sqrt(_dot(wv, wv))
+    dir_u = wu / len_u[:, None]
+    dir_v = wv / len_v[:, None]
+
+    # Stretch: C = √A(|w|−1), ∇_k C = √A coef_k ŵ.
+    c_u, c_v = sqrt_area * (len_u - 1.0), sqrt_area * (len_v - 1.0)
+    cdot_u, cdot_v = sqrt_area * _dot(dir_u, wu_dot), sqrt_area * _dot(dir_v, wv_dot)
+    # Shear: C = √A w_u·w_v, ∇_k C = √A (coef_u_k w_v + coef_v_k w_u).
+    c_s = sqrt_area * _dot(wu, wv)
+    grad_s = sqrt_area[:, None, None] * (cu[:, :, None] * wv[:, None, :]
+                                         + cv[:, :, None] * wu[:, None, :])
+    cdot_s = np.einsum("tkd,tkd->t", grad_s, vt)
+
+    # f_k = −k (C + βĊ) ∇_k C for each condition.
+    su = (-ks * sqrt_area * (c_u + bs * cdot_u))[:, None] * dir_u
+    sv = (-ks * sqrt_area * (c_v + bs * cdot_v))[:, None] * dir_v
+    tri_force = (cu[:, :, None] * su[:, None, :] + cv[:, :, None] * sv[:, None, :]
+                 + (-ksh * (c_s + bsh * cdot_s))[:, None, None] * grad_s)
+
+    # Kept stiffness: stretch S = ŵŵᵀ + max(1 − 1/|w|, 0)(I − ŵŵᵀ).
+    eye = np.eye(3)
+    outer_u = dir_u[:, :, None] * dir_u[:, None, :]
+    outer_v = dir_v[:, :, None] * dir_v[:, None, :]
+    tens_u = np.maximum(1.0 - 1.0 / len_u, 0.0)[:, None, None]
+    tens_v = np.maximum(1.0 - 1.0 / len_v, 0.0)[:, None, None]
+    stiff_u = outer_u + tens_u * (eye - outer_u)        # (t,3,3)
+    stiff_v = outer_v + tens_v * (eye - outer_v)
+    # (∂f/∂x) v per triangle corner.
+    kv_u = -ks * area[:, None] * np.einsum("tab,tb->ta", stiff_u, wu_dot)
+    kv_v = -ks * area[:, None] * np.einsum("tab,tb->ta", stiff_v, wv_dot)
+    tri_kv = (cu[:, :, None] * kv_u[:, None, :] + cv[:, :, None] * kv_v[:, None, :]
+              - ksh * cdot_s[:, None, None] * grad_s)
+
+    # Bend hinges.
+    hv = elements.hinge_vertices
+    weight = elements.hinge_weight
+    if len(hv):
+        theta, grad_b = hinge_angles(x, hv, with_gradient=True)
+        theta_dot = np.einsum("hkd,hkd->h", grad_b, v[hv])
+        hinge_force = (-kb * weight * (theta + bb * theta_dot))[:, None, None] * grad_b
+        hinge_kv = (-kb * weight * theta_dot)[:, None, None] * grad_b
+    else:
+        theta = theta_dot = np.zeros(0)
+        grad_b = np.zeros((0, 4, 3))
+        hinge_force = hinge_kv = grad_b
+
+    force = _scatter(tri, tri_force, n) + _scatter(hv, hinge_force, n)
+    kv = _scatter(tri, tri_kv, n) + _scatter(hv, hinge_kv, n)
+
+    tri_blocks = hinge_blocks = None
+    if with_blocks:
+        cK, cD = stiffness_weight, damping_weight
+        q_u = (ks * area)[:, None, None] * ((cK + cD * bs) * outer_u
+                                            + cK * tens_u * (eye - outer_u))
+        q_v = (ks * area)[:, None, None] * ((cK + cD * bs) * outer_v
+                                            + cK * tens_v * (eye - outer_v))
+        tri_blocks = (np.einsum("ti,tj,tab->tijab", cu, cu, q_u)
+                      + np.einsum("ti,tj,tab->tijab", cv, cv, q_v)
+                      + ((cK + cD * bsh) * ksh)
+                      * np.einsum("tia,tjb->tijab", grad_s, grad_s))
+        hinge_blocks = ((cK + cD * bb) * kb * weight)[:, None, None, None, None] * \
+            np.einsum("hia,hjb->hijab", grad_b, grad_b)
+
+    strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
+    return Evaluation(
+        force=force,
+        stretch_energy=float(0.5 * ks * (np.sum(c_u**2) + np.sum(c_v**2))),
+        shear_energy=float(0.5 * ksh * np.sum(c_s**2)),
+        bend_energy=float(0.5 * kb * np.sum(weight * theta**2)),
+        max_strain=float(strain.max()) if len(strain) else 0.0,
+        stiffness_times_velocity=kv,
+        triangle_blocks=tri_blocks, hinge_blocks=hinge_blocks,
+        hinge_angle=theta, hinge_rate=theta_dot)
+
+
+def _scatter(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Sum per-element corner vectors ``values[e, k]`` into ``out[index[e, k]]``."""
+    out = np.empty((n, 3))
+    flat = index.ravel()
+    vals = values.reshape(-1, 3)
+    for d in range(3):
+        out[:, d] = np.bincount(flat, weights=vals[:, d], minlength=n)
+    return out
+

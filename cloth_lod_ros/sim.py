@@ -1,0 +1,392 @@
+"""``ClothSim``: the scriptable facade over mesh, state, inputs and solver.
+
+Data, state and operators are kept apart (DESIGN.md §9):
+
+* :class:`~cloth_lod_ros.mesh48.RestMesh` + :class:`~cloth_lod_ros.forces.Elements`
+  — topology and rest state;
+* :class:`ClothState` — positions, velocities and time;
+* :class:`Pin` — inputs (material point, target path, release time);
+* :class:`ImplicitEulerSolver` — ``step(elements, masses, state, pins, h)``.
+
+Example::
+
+    sim = ClothSim.from_scene("hang_two_corners", overrides=["cloth.level=4"])
+    for _ in range(60):
+        stats = sim.step()
+    print(stats.cg_iterations, sim.sample([[0.5, 0.5]]))
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .config import SceneConfig, load_scene
+from .forces import Elements, evaluate, precompute
+from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
+from .metrics import PointLocator
+from .solver import Constraints, SparsePattern, filtered_pcg, solve_projected_direct
+
+__all__ = ["ClothSim", "ClothState", "Pin", "StepStats", "SimulationError",
+           "ImplicitEulerSolver"]
+
+log = logging.getLogger(__name__)
+
+
+class SimulationError(RuntimeError):
+    """The step could not produce a finite state; the previous state is kept."""
+
+
+@dataclass
+class ClothState:
+    """Dynamic state. ``positions``/``velocities``: ``(n, 3)`` in m and m/s; ``time`` in s."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    time: float = 0.0
+
+    def copy(self) -> "ClothState":
+        return ClothState(self.positions.copy(), self.velocities.copy(), self.time)
+
+
+@dataclass
+class Pin:
+    """A particle held at a target.
+
+    Attributes:
+        name: label.
+        uv: requested material point (m); ``vertex`` is the particle holding it
+            and ``snap_distance`` (m) how far that particle's rest point is.
+        anchor: ``(3,)`` target used when there are no waypoints (m).
+        waypoints: ``(w, 4)`` rows ``[t, x, y, z]``; linear in between, held at
+            the ends.
+        release_time: time (s) after which the pin no longer holds, or None.
+    """
+
+    name: str
+    uv: np.ndarray
+    vertex: int
+    snap_distance: float
+    anchor: np.ndarray
+    waypoints: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    release_time: float | None = None
+
+    def active(self, time: float) -> bool:
+        return self.release_time is None or time < self.release_time
+
+    def target(self, time: float) -> np.ndarray:
+        """Target position (m) at simulation time ``time`` (s)."""
+        if len(self.waypoints) == 0:
+            return self.anchor
+        t = self.waypoints[:, 0]
+        return np.array([np.interp(time, t, self.waypoints[:, d]) for d in (1, 2, 3)])
+
+
+@dataclass
+class StepStats:
+    """Statistics of one time step (SI units; times in milliseconds)."""
+
+    step_index: int
+    time: float
+    vertex_count: int
+    triangle_count: int
+    pinned_count: int
+    cg_iterations: int
+    residual: float
+    converged: bool
+    step_ms: float
+    force_ms: float
+    assembly_ms: float
+    solve_ms: float
+    kinetic_energy: float
+    gravity_energy: float
+    stretch_energy: float
+    shear_energy: float
+    bend_energy: float
+    max_strain: float
+    max_speed: float
+
+    @property
+    def total_energy(self) -> float:
+        return (self.kinetic_energy + self.gravity_energy + self.stretch_energy
+                + self.shear_energy + self.bend_energy)
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class SolveReport:
+    """What the solver reports alongside the new state (times in ms)."""
+
+    iterations: int
+    residual: float
+    converged: bool
+    force_ms: float
+    assembly_ms: float
+    solve_ms: float
+    evaluation: object
+
+
+class ImplicitEulerSolver:
+    """One linearised backward-Euler step with filtered PCG (DESIGN.md §3).
+
+    Keeps the sparsity pattern and the previous Δv (warm start) while the
+    topology is unchanged; call :meth:`reset_topology` after it changes.
+    """
+
+    def __init__(self, solver_config, material, gravity):
+        self.config = solver_config
+        self.material = material
+        self.gravity = np.asarray(gravity, dtype=float)
+        self._pattern: SparsePattern | None = None
+        self._previous_dv: np.ndarray | None = None
+
+    def reset_topology(self) -> None:
+        self._pattern = None
+        self._previous_dv = None
+
+    def step(self, elements: Elements, masses: np.ndarray, state: ClothState,
+             constraints_targets: tuple[np.ndarray, np.ndarray], h: float):
+        """Advance ``state`` by ``h`` seconds.
+
+        Args:
+            elements: rest data of the current topology.
+            masses: ``(n,)`` particle masses, kg.
+            state: current state (not modified).
+            constraints_targets: ``(indices (k,), targets (k, 3))``: particles
+                that must be exactly at ``targets`` (m) at the end of the step.
+            h: time step, s.
+
+        Returns:
+            ``(new_state, SolveReport)``.
+        """
+        mat = self.material
+        x, v = state.positions, state.velocities
+        t0 = _time.perf_counter()
+        if self._pattern is None:
+            self._pattern = SparsePattern(elements.vertex_count,
+                                          [elements.triangles, elements.hinge_vertices])
+        ev = evaluate(elements, mat, x, v, stiffness_weight=h * h, damping_weight=h)
+        drag = mat.air_drag
+        force = ev.force + masses[:, None] * (self.gravity - drag * v)
+        rhs = h * (force + h * ev.stiffness_times_velocity)
+        t1 = _time.perf_counter()
+        # M − h ∂f/∂v includes the drag term h·c·M on the diagonal.
+        matrix = self._pattern.assemble([ev.triangle_blocks, ev.hinge_blocks],
+                                        masses * (1.0 + h * drag))
+        t2 = _time.perf_counter()
+
+        held, targets = constraints_targets
+        # Velocity that lands a held particle on its target: x + h v_new = target.
+        target_velocity = (targets - x[held]) / h
+        constraints = Constraints(
+            indices=held, projectors=np.zeros((len(held), 3, 3)),
+            prescribed=target_velocity - v[held])
+        if self.config.method == "direct":
+            result = solve_projected_direct(matrix, rhs, constraints)
+        else:
+            result = filtered_pcg(matrix, rhs, constraints,
+                                  self._pattern.diagonal_blocks(matrix),
+                                  guess=self._previous_dv,
+                                  tolerance=self.config.tolerance,
+                                  max_iterations=self.config.max_iterations)
+        t3 = _time.perf_counter()
+        new_v = v + result.dv
+        new_x = x + h * new_v
+        # Held particles: exactly on target (the velocity above agrees to rounding).
+        new_x[held] = targets
+        new_v[held] = target_velocity
+        self._previous_dv = result.dv
+        report = SolveReport(result.iterations, result.residual, result.converged,
+                             1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), ev)
+        return ClothState(new_x, new_v, state.time + h), report
+
+
+class ClothSim:
+    """A cloth scene ready to step.
+
+    Build from a :class:`~cloth_lod_ros.config.SceneConfig` or with
+    :meth:`from_scene` (built-in name or YAML path, plus ``key=value``
+    overrides).  Arrays returned by the properties are the live state: copy
+    them if you keep them across steps.
+    """
+
+    def __init__(self, scene: SceneConfig):
+        self.scene = scene
+        cloth = scene.cloth
+        base = base_mesh(cloth.width, cloth.height, *cloth.base_blocks)
+        self.mesh: RestMesh = refine_uniform(base, cloth.level)
+        self.elements: Elements = precompute(self.mesh)
+        self.masses = lumped_masses(self.mesh.uv, self.mesh.triangles,
+                                    scene.material.density)
+        origin = np.asarray(cloth.origin, dtype=float)
+        axes = np.array([cloth.u_axis, cloth.v_axis], dtype=float)
+        positions = origin + self.mesh.uv @ axes
+        self.state = ClothState(positions, np.zeros_like(positions), 0.0)
+        self.pins = [self._make_pin(p) for p in scene.pins]
+        self.solver = ImplicitEulerSolver(scene.solver, scene.material,
+                                          scene.simulation.gravity)
+        self.time_step = scene.simulation.time_step
+        self.stats: list[StepStats] = []
+        self._locator: PointLocator | None = None
+        self._unconverged_steps = 0
+
+    @classmethod
+    def from_scene(cls, scene: str | os.PathLike,
+                   overrides: list[str] | dict | None = None) -> "ClothSim":
+        """Load a scene (built-in name or path) with optional overrides."""
+        return cls(load_scene(scene, overrides))
+
+    # -- inputs -------------------------------------------------------------
+    def _make_pin(self, cfg) -> Pin:
+        uv = np.asarray(cfg.uv, dtype=float)
+        dist = np.linalg.norm(self.mesh.uv - uv, axis=1)
+        vertex = int(dist.argmin())
+        if dist[vertex] > 1e-9 * max(self.mesh.width, self.mesh.height):
+            log.warning("pin %r at uv=%s snapped to the nearest particle uv=%s (%.4g m away)",
+                        cfg.name, uv.tolist(), self.mesh.uv[vertex].tolist(), dist[vertex])
+        return Pin(name=cfg.name, uv=uv, vertex=vertex, snap_distance=float(dist[vertex]),
+                   anchor=self.state.positions[vertex].copy(),
+                   waypoints=np.asarray(cfg.waypoints, dtype=float).reshape(-1, 4),
+                   release_time=cfg.release_time)
+
+    def pin(self, name: str) -> Pin:
+        for p in self.pins:
+            if p.name == name:
+                return p
+        raise KeyError(f"no pin named {name!r}; pins: {[p.name for p in self.pins]}")
+
+    def set_pin_target(self, name: str, position) -> None:
+        """Hold pin ``name`` at ``position`` (m) from the next step on.
+
+        The particle moves there in one step with the prescribed velocity
+        ``(target − x)/h`` (speed limiting belongs to the grasp layer).
+        """
+        position = np.asarray(position, dtype=float)
+        if position.shape != (3,) or not np.all(np.isfinite(position)):
+            raise ValueError(f"pin target must be 3 finite numbers, got {position!r}")
+        pin = self.pin(name)
+        pin.anchor = position.copy()
+        pin.waypoints = np.zeros((0, 4))
+
+    def release_pin(self, name: str) -> None:
+        """Let pin ``name`` go from now on."""
+        self.pin(name).release_time = self.state.time
+
+    def _held(self, time: float) -> tuple[np.ndarray, np.ndarray]:
+        active = [p for p in self.pins if p.active(time)]
+        if not active:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        return (np.array([p.vertex for p in active], dtype=np.int64),
+                np.array([p.target(time) for p in active], dtype=float))
+
+    # -- stepping -----------------------------------------------------------
+    def step(self) -> StepStats:
+        """Advance by one time step; return its statistics.
+
+        Raises:
+            SimulationError: the new state would not be finite (the state is
+                left at the previous step).
+        """
+        h = self.time_step
+        start = _time.perf_counter()
+        held = self._held(self.state.time + h)
+        new_state, report = self.solver.step(self.elements, self.masses, self.state,
+                                             held, h)
+        if not (np.all(np.isfinite(new_state.positions))
+                and np.all(np.isfinite(new_state.velocities))):
+            self.solver.reset_topology()
+            raise SimulationError(f"non-finite state at t = {new_state.time:.4f} s "
+                                  f"(CG residual {report.residual:.3g}); step refused")
+        if not report.converged:
+            self._unconverged_steps += 1
+            if self._unconverged_steps in (1, 10, 100) or self._unconverged_steps % 1000 == 0:
+                log.warning("linear solve did not converge at t = %.4f s: residual %.3g "
+                            "after %d iterations (%d such steps so far)", new_state.time,
+                            report.residual, report.iterations, self._unconverged_steps)
+        self.state = new_state
+        ev = report.evaluation
+        x, v = new_state.positions, new_state.velocities
+        stats = StepStats(
+            step_index=len(self.stats), time=new_state.time,
+            vertex_count=self.mesh.vertex_count, triangle_count=self.mesh.triangle_count,
+            pinned_count=len(held[0]), cg_iterations=report.iterations,
+            residual=report.residual, converged=report.converged,
+            step_ms=1e3 * (_time.perf_counter() - start), force_ms=report.force_ms,
+            assembly_ms=report.assembly_ms, solve_ms=report.solve_ms,
+            kinetic_energy=float(0.5 * np.sum(self.masses * np.sum(v * v, axis=1))),
+            gravity_energy=float(-np.sum(self.masses * (x @ self.solver.gravity))),
+            # Elastic energies and strain are those of the start of the step
+            # (already computed for the forces); cheap and one step behind.
+            stretch_energy=ev.stretch_energy, shear_energy=ev.shear_energy,
+            bend_energy=ev.bend_energy, max_strain=ev.max_strain,
+            max_speed=float(np.sqrt(np.max(np.sum(v * v, axis=1)))))
+        self.stats.append(stats)
+        return stats
+
+    def run(self, duration: float | None = None, callback=None) -> list[StepStats]:
+        """Step until ``duration`` more seconds (default: the scene's) have passed."""
+        duration = self.scene.simulation.duration if duration is None else duration
+        steps = int(round(duration / self.time_step))
+        out = []
+        for _ in range(steps):
+            out.append(self.step())
+            if callback is not None:
+                callback(self, out[-1])
+        return out
+
+    # -- views --------------------------------------------------------------
+    @property
+    def positions(self) -> np.ndarray:
+        """``(n, 3)`` particle positions, m."""
+        return self.state.positions
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """``(n, 3)`` particle velocities, m/s."""
+        return self.state.velocities
+
+    @property
+    def time(self) -> float:
+        """Simulation time, s."""
+        return self.state.time
+
+    @property
+    def rest_uv(self) -> np.ndarray:
+        """``(n, 2)`` rest material coordinates, m."""
+        return self.mesh.uv
+
+    @property
+    def triangles(self) -> np.ndarray:
+        """``(t, 3)`` vertex indices of the active triangles."""
+        return self.mesh.triangles
+
+    @property
+    def triangle_levels(self) -> np.ndarray:
+        """``(t,)`` bisection level of each triangle."""
+        return self.mesh.levels
+
+    def sample(self, uv) -> np.ndarray:
+        """3-D positions ``(m, 3)`` of material points ``uv`` ``(m, 2)`` (m).
+
+        Barycentric interpolation in the rest triangle containing each point.
+        """
+        if self._locator is None:
+            self._locator = PointLocator(self.mesh.uv, self.mesh.triangles,
+                                         self.mesh.width, self.mesh.height)
+        return self._locator.sample(self.state.positions, uv)
+
+    def energy(self) -> dict:
+        """Energies (J) of the current state: kinetic, gravity, stretch, shear, bend."""
+        ev = evaluate(self.elements, self.scene.material, self.state.positions,
+                      self.state.velocities, with_blocks=False)
+        x, v = self.state.positions, self.state.velocities
+        return dict(kinetic=float(0.5 * np.sum(self.masses * np.sum(v * v, axis=1))),
+                    gravity=float(-np.sum(self.masses * (x @ self.solver.gravity))),
+                    stretch=ev.stretch_energy, shear=ev.shear_energy, bend=ev.bend_energy)
