@@ -1,0 +1,157 @@
+"""``cloth-lod``: the command-line tool.
+
+    cloth-lod run SCENE [--duration S] [--dt H] [--level L] [--set key=value ...]
+                        [--out state.npz] [--png picture.png] [--quiet]
+    cloth-lod scenes
+
+``run`` simulates headless and writes the final state (x, v, uv, mass,
+triangles, time) and the per-step statistics to an ``.npz`` file, and a PNG of
+the final cloth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .config import SceneError, builtin_scene_names, load_scene
+from .sim import ClothSim, SimulationError, StepStats
+
+__all__ = ["main", "save_state"]
+
+
+def save_state(path: Path, sim: ClothSim) -> None:
+    """Write the final state and every step's statistics to ``path`` (.npz).
+
+    Keys: ``x`` (n,3) m, ``v`` (n,3) m/s, ``uv`` (n,2) m, ``mass`` (n,) kg,
+    ``triangles`` (t,3), ``levels`` (t,), ``time`` s, ``pinned`` (k,), and
+    ``stats_<field>`` (steps,) for each :class:`StepStats` field.
+    """
+    fields = StepStats.__dataclass_fields__
+    stats = {f"stats_{name}": np.array([getattr(s, name) for s in sim.stats])
+             for name in fields}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        path, x=sim.positions, v=sim.velocities, uv=sim.rest_uv, mass=sim.masses,
+        triangles=sim.triangles, levels=sim.triangle_levels, time=sim.time,
+        pinned=np.array([p.vertex for p in sim.pins], dtype=np.int64),
+        scene=sim.scene.name, **stats)
+
+
+def _summary(sim: ClothSim, wall: float) -> str:
+    st = sim.stats
+    if not st:
+        return "no steps taken"
+    it = np.array([s.cg_iterations for s in st])
+    step_ms = np.array([s.step_ms for s in st])
+    unconverged = sum(not s.converged for s in st)
+    last = st[-1]
+    lines = [
+        f"scene {sim.scene.name}: {len(st)} steps of {sim.time_step * 1e3:.3g} ms to "
+        f"t = {sim.time:.3f} s; {sim.mesh.vertex_count} particles, "
+        f"{sim.mesh.triangle_count} triangles",
+        f"  time per step: mean {step_ms.mean():.2f} ms, median {np.median(step_ms):.2f} ms "
+        f"(forces {np.mean([s.force_ms for s in st]):.2f}, assembly "
+        f"{np.mean([s.assembly_ms for s in st]):.2f}, solve "
+        f"{np.mean([s.solve_ms for s in st]):.2f}); real-time factor "
+        f"{sim.time / wall:.2f}",
+        f"  solver {sim.scene.solver.method}: CG iterations mean {it.mean():.1f}, "
+        f"max {it.max()}; worst residual {max(s.residual for s in st):.2e}; "
+        f"{unconverged} unconverged step(s)",
+        f"  final energy [J]: kinetic {last.kinetic_energy:.4g}, stretch "
+        f"{last.stretch_energy:.4g}, shear {last.shear_energy:.4g}, bend "
+        f"{last.bend_energy:.4g}; max strain {last.max_strain:.4f}, max speed "
+        f"{last.max_speed:.3f} m/s",
+    ]
+    return "\n".join(lines)
+
+
+def _cmd_run(args) -> int:
+    overrides = list(args.set or [])
+    if args.dt is not None:
+        overrides.append(f"simulation.time_step={args.dt}")
+    if args.level is not None:
+        overrides.append(f"cloth.level={args.level}")
+    if args.duration is not None:
+        overrides.append(f"simulation.duration={args.duration}")
+    scene = load_scene(args.scene, overrides)
+    sim = ClothSim(scene)
+    out = Path(args.out) if args.out else Path("out") / f"{scene.name}.npz"
+    png = Path(args.png) if args.png else out.with_suffix(".png")
+    steps = int(round(scene.simulation.duration / scene.simulation.time_step))
+    report_every = max(steps // 10, 1)
+
+    def progress(s, stats):
+        if not args.quiet and (stats.step_index + 1) % report_every == 0:
+            print(f"  t = {stats.time:6.3f} s  step {stats.step_ms:7.2f} ms  "
+                  f"CG {stats.cg_iterations:4d}  KE {stats.kinetic_energy:.3e} J",
+                  flush=True)
+
+    start = time.perf_counter()
+    try:
+        sim.run(scene.simulation.duration, callback=progress)
+    except SimulationError as exc:
+        print(f"cloth-lod: simulation stopped: {exc}", file=sys.stderr)
+        save_state(out, sim)
+        return 3
+    wall = time.perf_counter() - start
+    print(_summary(sim, wall))
+    save_state(out, sim)
+    print(f"  wrote {out}")
+    if not args.no_png:
+        from .plotting import render_cloth
+        render_cloth(png, sim.positions, sim.triangles, sim.triangle_levels,
+                     np.array([p.vertex for p in sim.pins], dtype=np.int64),
+                     title=f"{scene.name}, t = {sim.time:.2f} s, "
+                           f"{sim.mesh.triangle_count} triangles")
+        print(f"  wrote {png}")
+    return 0
+
+
+def _cmd_scenes(args) -> int:
+    for name in builtin_scene_names():
+        scene = load_scene(name)
+        print(f"{name:24s} {scene.description}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="cloth-lod", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="simulate a scene headless and save the final state")
+    run.add_argument("scene", help="built-in scene name or path to a scene YAML file")
+    run.add_argument("--duration", type=float, help="simulated seconds (default: scene's)")
+    run.add_argument("--dt", type=float, help="time step in seconds (default: scene's)")
+    run.add_argument("--level", type=int, help="uniform refinement level")
+    run.add_argument("--set", action="append", metavar="KEY=VALUE",
+                     help="override a scene field, e.g. material.density=0.3 (repeatable)")
+    run.add_argument("--out", help="state file (.npz), default out/<scene>.npz")
+    run.add_argument("--png", help="picture of the final state, default beside --out")
+    run.add_argument("--no-png", action="store_true", help="do not write a picture")
+    run.add_argument("--quiet", action="store_true", help="no progress lines")
+    run.set_defaults(func=_cmd_run)
+    scenes = sub.add_parser("scenes", help="list the built-in scenes")
+    scenes.set_defaults(func=_cmd_scenes)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.WARNING, format="cloth-lod: %(levelname)s: %(message)s")
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except SceneError as exc:
+        print(f"cloth-lod: scene error: {exc}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError) as exc:
+        print(f"cloth-lod: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,44 @@
+"""ament_python package: installable with colcon (ROS install) or pip (PyPI wheels)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "cloth_lod_ros"
+
+# ROS 2 Jazzy from PyPI wheels (only for a virtual environment without a ROS
+# install; colcon users get these from their distribution).  Pinned: the bare
+# ros-* names on PyPI are a newer distribution.
+ROS_WHEELS = [
+    "ros-jazzy-rclpy[fastrtps]==7.1.6",
+    "ros-jazzy-common-interfaces==5.3.6",
+]
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config/scenes", glob("config/scenes/*.yaml")),
+    ],
+    python_requires=">=3.10",
+    install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6",
+                      "matplotlib>=3.6"],
+    extras_require={
+        "ros": ROS_WHEELS,
+        "test": ROS_WHEELS + ["pytest>=7", "hypothesis>=6"],
+    },
+    zip_safe=True,
+    maintainer="cloth_lod_ros maintainers",
+    maintainer_email="maintainers@cloth-lod-ros.invalid",
+    description="Adaptive 4-8 level-of-detail cloth simulation for ROS 2",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "cloth-lod = cloth_lod_ros.cli:main",
+        ],
+    },
+)
