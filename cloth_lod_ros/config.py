@@ -13,6 +13,7 @@ import copy
 import dataclasses
 import math
 import os
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +31,28 @@ __all__ = [
 
 class SceneError(ValueError):
     """A scene file or override is malformed; the message names the field."""
+
+
+class _SceneLoader(yaml.SafeLoader):
+    """Safe YAML loader that also reads ``1e-5`` as a float.
+
+    PyYAML follows YAML 1.1, where a float needs a dot (``1.0e-5``); YAML 1.2
+    and every user's expectation accept ``1e-5``.
+    """
+
+
+_SceneLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                 |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                 |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                 |[-+]?\.(?:inf|Inf|INF)
+                 |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."))
+
+
+def _load_yaml(text: str):
+    return yaml.load(text, Loader=_SceneLoader)  # noqa: S506 - safe loader subclass
 
 
 def _spec(kind: str, unit: str = "", *, gt: float | None = None,
@@ -171,7 +194,11 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
         norm = math.sqrt(sum(c * c for c in vec))
         if norm == 0.0:
             raise SceneError(f"field '{path}' must be a non-zero direction")
-        out = tuple(c / norm for c in vec)
+        # Leave an already-unit vector alone: dividing by a norm that is 1 only
+        # to rounding would change it, so scene_to_dict -> scene_from_dict
+        # would not round-trip.
+        out = vec if abs(norm - 1.0) <= 4 * sys.float_info.epsilon else tuple(
+            c / norm for c in vec)
     elif kind == "str":
         if not isinstance(value, str):
             raise SceneError(f"field '{path}' must be a string, got {value!r}")
@@ -290,7 +317,7 @@ def _split_override(text: str):
     if not key:
         raise SceneError(f"override {text!r} has an empty key")
     try:
-        value = yaml.safe_load(raw)
+        value = _load_yaml(raw)
     except yaml.YAMLError as exc:
         raise SceneError(f"override {text!r}: value is not valid YAML ({exc})") from exc
     return key, value
@@ -338,7 +365,7 @@ def load_scene(scene: str | os.PathLike,
     """
     path = find_scene_file(scene)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = _load_yaml(path.read_text())
     except yaml.YAMLError as exc:
         raise SceneError(f"{path}: not valid YAML ({exc})") from exc
     except OSError as exc:
