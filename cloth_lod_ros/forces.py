@@ -104,6 +104,15 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...i->...", a, b)
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of ``(m, 3)`` arrays (np.cross is ~5x slower here)."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
 def hinge_angles(x: np.ndarray, hinge_vertices: np.ndarray,
                  with_gradient: bool = False):
     """Signed dihedral angles θ (rad) of the hinges, and optionally ∂θ/∂x.
@@ -121,12 +130,12 @@ def hinge_angles(x: np.ndarray, hinge_vertices: np.ndarray,
     edge = e1 - e0
     edge_len2 = _dot(edge, edge)
     edge_len = np.sqrt(edge_len2)
-    n0 = np.cross(edge, o0 - e0)
-    n1 = np.cross(o1 - e0, edge)
+    n0 = _cross(edge, o0 - e0)
+    n1 = _cross(o1 - e0, edge)
     n0_len2, n1_len2 = _dot(n0, n0), _dot(n1, n1)
     n0_hat = n0 / np.sqrt(n0_len2)[:, None]
     n1_hat = n1 / np.sqrt(n1_len2)[:, None]
-    sin_t = _dot(np.cross(n0_hat, n1_hat), edge) / edge_len
+    sin_t = _dot(_cross(n0_hat, n1_hat), edge) / edge_len
     cos_t = _dot(n0_hat, n1_hat)
     theta = np.arctan2(sin_t, cos_t)
     if not with_gradient:
@@ -150,9 +159,10 @@ class Evaluation:
         max_strain: largest ``| |w| − 1 |`` over triangles and directions.
         stiffness_times_velocity: ``(n, 3)`` ``(∂f/∂x) v`` with the kept
             Jacobian, in N/s (the ``h² K v`` term of the right-hand side).
-        triangle_blocks: ``(t, 3, 3, 3, 3)`` blocks ``[i, j]`` of
-            ``−(stiffness_weight ∂f/∂x + damping_weight ∂f/∂v)``, or ``None``.
-        hinge_blocks: ``(h, 4, 4, 3, 3)`` same for hinges, or ``None``.
+        triangle_blocks: ``(t, 3, 3, 3, 3)`` entries ``[e, i, a, j, b]`` of
+            ``−(stiffness_weight ∂f/∂x + damping_weight ∂f/∂v)`` (row ``3·v_i + a``,
+            column ``3·v_j + b``), or ``None``.
+        hinge_blocks: ``(h, 4, 3, 4, 3)`` same layout for hinges, or ``None``.
         hinge_angle: ``(h,)`` θ in rad; ``hinge_rate``: ``(h,)`` dθ/dt in rad/s.
     """
 
@@ -250,17 +260,26 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
 
     tri_blocks = hinge_blocks = None
     if with_blocks:
+        # Blocks are laid out (element, i, a, j, b): entry [i, a, j, b] is row
+        # 3·v_i + a, column 3·v_j + b, so each term is a broadcast outer product.
         cK, cD = stiffness_weight, damping_weight
-        q_u = (ks * area)[:, None, None] * ((cK + cD * bs) * outer_u
-                                            + cK * tens_u * (eye - outer_u))
-        q_v = (ks * area)[:, None, None] * ((cK + cD * bs) * outer_v
-                                            + cK * tens_v * (eye - outer_v))
-        tri_blocks = (np.einsum("ti,tj,tab->tijab", cu, cu, q_u)
-                      + np.einsum("ti,tj,tab->tijab", cv, cv, q_v)
-                      + ((cK + cD * bsh) * ksh)
-                      * np.einsum("tia,tjb->tijab", grad_s, grad_s))
-        hinge_blocks = ((cK + cD * bb) * kb * weight)[:, None, None, None, None] * \
-            np.einsum("hia,hjb->hijab", grad_b, grad_b)
+        # Stretch: coef_i coef_j k_s A [(cK + cD β) ŵŵᵀ + cK max(1 − 1/|w|, 0)(I − ŵŵᵀ)]
+        #   = (g gᵀ)·(α − β') + (coef coefᵀ ⊗ I)·β' with g = coef ⊗ ŵ.
+        tri_blocks = np.zeros((len(tri), 3, 3, 3, 3))
+        for coef, direction, tension, damp in ((cu, dir_u, tens_u, bs), (cv, dir_v, tens_v, bs)):
+            along = ks * area * (cK + cD * damp)                 # (t,)
+            across = ks * area * cK * tension[:, 0, 0]           # (t,)
+            g = coef[:, :, None] * direction[:, None, :]          # (t, 3, 3)
+            tri_blocks += (along - across)[:, None, None, None, None] * (
+                g[:, :, :, None, None] * g[:, None, None, :, :])
+            scalar = across[:, None, None] * coef[:, :, None] * coef[:, None, :]
+            idx = np.arange(3)
+            tri_blocks[:, :, idx, :, idx] += scalar[None]
+        shear_scale = (cK + cD * bsh) * ksh
+        tri_blocks += shear_scale * (grad_s[:, :, :, None, None] * grad_s[:, None, None, :, :])
+        g = grad_b.reshape(len(grad_b), 12)
+        hinge_blocks = (((cK + cD * bb) * kb * weight)[:, None, None]
+                        * g[:, :, None] * g[:, None, :]).reshape(len(g), 4, 3, 4, 3)
 
     strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
     return Evaluation(

@@ -43,11 +43,12 @@ class SparsePattern:
             verts = np.asarray(verts, dtype=np.int64)
             k = verts.shape[1]
             self._element_sizes.append((len(verts), k))
-            # Entry (e, i, j, a, b) sits at row 3*v_i + a, column 3*v_j + b.
-            r = 3 * verts[:, :, None, None, None] + np.arange(3)[:, None]
-            c = 3 * verts[:, None, :, None, None] + np.arange(3)[None, :]
-            r = np.broadcast_to(r, (len(verts), k, k, 3, 3))
-            c = np.broadcast_to(c, (len(verts), k, k, 3, 3))
+            # Entry (e, i, a, j, b) sits at row 3*v_i + a, column 3*v_j + b.
+            axis = np.arange(3)
+            r = 3 * verts[:, :, None, None, None] + axis[None, None, :, None, None]
+            c = 3 * verts[:, None, None, :, None] + axis[None, None, None, None, :]
+            r = np.broadcast_to(r, (len(verts), k, 3, k, 3))
+            c = np.broadcast_to(c, (len(verts), k, 3, k, 3))
             row_parts.append(r.ravel())
             col_parts.append(c.ravel())
         # The 3x3 diagonal block of every vertex (mass, drag) is always present.
@@ -74,7 +75,8 @@ class SparsePattern:
         """Sum element blocks and a per-vertex diagonal into the fixed pattern.
 
         Args:
-            element_blocks: arrays ``(e, k, k, 3, 3)`` in the order given at
+            element_blocks: arrays ``(e, k, 3, k, 3)`` (entry ``[e, i, a, j, b]``
+                at row ``3·v_i + a``, column ``3·v_j + b``), in the order given at
                 construction.
             diagonal: ``(n,)`` scalar added as ``diagonal[i] * I₃`` to each vertex
                 block (mass plus drag terms).
