@@ -250,6 +250,11 @@ def check_mesh(mesh: RestMesh, atol: float = 1e-12) -> None:
     areas = triangle_rest_areas(uv, t)
     if np.any(areas <= 0):
         raise MeshError("a triangle is degenerate or clockwise in (u, v)")
+    if len(mesh.levels) != len(t):
+        raise MeshError("levels must give one bisection level per triangle")
+    base_areas = areas * np.exp2(np.asarray(mesh.levels, dtype=float))
+    if not np.allclose(base_areas, base_areas[0], rtol=1e-9, atol=0):
+        raise MeshError("a triangle's area is not 2**-level of a base triangle")
     if not np.isclose(areas.sum(), mesh.width * mesh.height, rtol=1e-12, atol=0):
         raise MeshError(f"triangles cover {areas.sum()} m^2, cloth is "
                         f"{mesh.width * mesh.height} m^2")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 __all__ = ["render_cloth"]
@@ -61,5 +63,6 @@ def render_cloth(path, positions: np.ndarray, triangles: np.ndarray,
     if title:
         ax.set_title(title, fontsize=10)
     fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)

@@ -1,0 +1,249 @@
+"""The ``cloth-lod`` command line: run, outputs, error handling, scenes."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cloth_lod_ros import cli
+from cloth_lod_ros.config import load_scene
+from cloth_lod_ros.sim import ClothSim, SimulationError, StepStats
+
+REPO = Path(__file__).resolve().parent.parent
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+FAST = ["--level", "2", "--duration", "0.1", "--quiet"]
+DURATION = 0.1
+
+
+def run(tmp_path, *extra, out="state.npz"):
+    return cli.main(["run", "hang_two_corners", *FAST, "--out", str(tmp_path / out), *extra])
+
+
+@pytest.fixture(scope="module")
+def fast_run(tmp_path_factory):
+    """One fast run shared by the output checks."""
+    tmp = tmp_path_factory.mktemp("run")
+    code = run(tmp)
+    with np.load(tmp / "state.npz") as data:
+        arrays = {k: data[k] for k in data.files}
+    return code, tmp, arrays
+
+
+def test_run_exits_zero_and_writes_outputs(fast_run):
+    code, tmp, _ = fast_run
+    assert code == 0
+    assert (tmp / "state.npz").stat().st_size > 0
+    png = tmp / "state.png"                                   # default: beside --out
+    assert png.stat().st_size > 1000
+    assert png.read_bytes()[:8] == PNG_MAGIC
+
+
+def test_state_file_keys_and_shapes(fast_run):
+    _, _, d = fast_run
+    scene = load_scene("hang_two_corners", ["cloth.level=2"])
+    n = (4 * 2 + 1) ** 2                                      # level 2 of 4x4: 9x9 grid
+    t = 32 * 4
+    for key in ("x", "v", "uv", "mass", "triangles", "levels", "time", "pinned"):
+        assert key in d, key
+    assert d["x"].shape == (n, 3) and d["v"].shape == (n, 3)
+    assert d["uv"].shape == (n, 2) and d["mass"].shape == (n,)
+    assert d["triangles"].shape == (t, 3) and d["levels"].shape == (t,)
+    assert np.issubdtype(d["triangles"].dtype, np.integer)
+    assert d["triangles"].min() >= 0 and d["triangles"].max() < n
+    assert np.all(d["levels"] == 2)
+    assert np.all(np.isfinite(d["x"])) and np.all(np.isfinite(d["v"]))
+    assert d["time"].shape == () and float(d["time"]) == pytest.approx(DURATION, abs=1e-9)
+    assert d["mass"].sum() == pytest.approx(scene.material.density * 1.0 * 1.0, rel=1e-12)
+    # Two pins at the top corners (v = 1 m).
+    assert d["pinned"].shape == (2,)
+    np.testing.assert_allclose(d["uv"][d["pinned"]], [[0.0, 1.0], [1.0, 1.0]], atol=1e-12)
+    # The cloth has moved under gravity but the pins have not.
+    start = np.asarray(scene.cloth.origin) + np.column_stack(
+        [d["uv"], np.zeros(n)])
+    np.testing.assert_allclose(d["x"][d["pinned"]], start[d["pinned"]], atol=1e-9)
+    assert d["x"][:, 2].min() < start[:, 2].min() - 1e-3
+
+
+def test_state_file_stats(fast_run):
+    _, _, d = fast_run
+    steps = int(round(DURATION / (1 / 60)))
+    names = [f.name for f in dataclasses.fields(StepStats)]
+    for name in names:
+        assert d[f"stats_{name}"].shape == (steps,), name
+    np.testing.assert_array_equal(d["stats_step_index"], np.arange(steps))
+    assert np.all(np.diff(d["stats_time"]) > 0)
+    assert d["stats_time"][-1] == pytest.approx(float(d["time"]))
+    assert np.all(d["stats_vertex_count"] == len(d["x"]))
+    assert np.all(d["stats_triangle_count"] == len(d["triangles"]))
+    assert np.all(d["stats_pinned_count"] == 2)
+    assert np.all(d["stats_kinetic_energy"] >= 0)
+    stray = {k for k in d if k.startswith("stats_")} - {f"stats_{n}" for n in names}
+    assert not stray
+
+
+def test_no_png_writes_no_picture(tmp_path):
+    assert run(tmp_path, "--no-png") == 0
+    assert (tmp_path / "state.npz").is_file()
+    assert not list(tmp_path.rglob("*.png"))
+
+
+def test_png_path_in_new_directory(tmp_path):
+    png = tmp_path / "pictures" / "deep" / "final.png"
+    assert run(tmp_path, "--png", str(png), out="a/b/state.npz") == 0
+    assert (tmp_path / "a" / "b" / "state.npz").is_file()
+    assert png.read_bytes()[:8] == PNG_MAGIC
+
+
+def test_default_output_path(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["run", "hang_two_corners", *FAST, "--no-png"]) == 0
+    assert (tmp_path / "out" / "hang_two_corners.npz").is_file()
+
+
+def test_dt_and_set_overrides_reach_the_simulation(tmp_path):
+    code = cli.main(["run", "hang_two_corners", "--level", "1", "--duration", "0.1",
+                     "--dt", "0.025", "--set", "material.density=0.5", "--quiet",
+                     "--no-png", "--out", str(tmp_path / "s.npz")])
+    assert code == 0
+    with np.load(tmp_path / "s.npz") as d:
+        assert len(d["stats_time"]) == 4
+        np.testing.assert_allclose(d["stats_time"], [0.025, 0.05, 0.075, 0.1])
+        assert d["mass"].sum() == pytest.approx(0.5, rel=1e-12)
+        assert np.all(d["levels"] == 1)
+
+
+def test_progress_and_summary_printed(tmp_path, capsys):
+    code = cli.main(["run", "hang_two_corners", "--level", "1", "--duration", "0.1",
+                     "--no-png", "--out", str(tmp_path / "s.npz")])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "t =  0.100 s" in out                       # progress line of the last step
+    assert "6 steps" in out and "wrote" in out
+
+
+def test_quiet_suppresses_progress(tmp_path, capsys):
+    assert run(tmp_path, "--no-png") == 0
+    out = capsys.readouterr().out
+    assert "CG" not in out.split("scene hang_two_corners")[0]
+    assert "scene hang_two_corners" in out
+
+
+@pytest.mark.parametrize("argv, field", [
+    (["--set", "material.density=-1"], "material.density"),
+    (["--set", "material.densty=1"], "material.densty"),
+    (["--dt", "0"], "simulation.time_step"),
+    (["--level", "-1"], "cloth.level"),
+    (["--set", "cloth.base_blocks=[4, 2]"], "cloth.base_blocks"),
+    (["--set", "nonsense"], "nonsense"),
+])
+def test_bad_override_exits_2_naming_field(tmp_path, capsys, argv, field):
+    code = cli.main(["run", "hang_two_corners", "--level", "1", "--duration", "0.05",
+                     "--out", str(tmp_path / "s.npz"), *argv])
+    assert code == 2
+    captured = capsys.readouterr()
+    assert field in captured.err
+    assert captured.err.startswith("cloth-lod:")
+    assert "Traceback" not in captured.err + captured.out
+    assert not (tmp_path / "s.npz").exists()              # refused before simulating
+
+
+def test_unknown_scene_exits_2(tmp_path, capsys):
+    code = cli.main(["run", "no_such_scene", "--out", str(tmp_path / "s.npz")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "no_such_scene" in err and "hang_two_corners" in err
+    assert "Traceback" not in err
+
+
+def test_missing_scene_file_exits_2(tmp_path, capsys):
+    code = cli.main(["run", str(tmp_path / "missing.yaml")])
+    assert code == 2
+    assert "missing.yaml" in capsys.readouterr().err
+
+
+def test_bad_scene_file_exits_2(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("cloth: {width: 1.0, height: 1.0, base_blocks: [1, 1]}\n"
+                   "simulation: {duration: 1.0}\n")
+    assert cli.main(["run", str(bad)]) == 2
+    assert "simulation.time_step" in capsys.readouterr().err
+
+
+def test_usage_errors_exit_2(capsys):
+    with pytest.raises(SystemExit) as info:
+        cli.main([])
+    assert info.value.code == 2
+    with pytest.raises(SystemExit) as info:
+        cli.main(["run", "hang_two_corners", "--level", "two"])
+    assert info.value.code == 2
+    assert "--level" in capsys.readouterr().err
+
+
+def test_simulation_error_exits_3_and_saves_state(tmp_path, capsys, monkeypatch):
+    real_step = ClothSim.step
+
+    def failing_step(self):
+        if len(self.stats) == 2:
+            raise SimulationError("non-finite state (test)")
+        return real_step(self)
+
+    monkeypatch.setattr(ClothSim, "step", failing_step)
+    code = run(tmp_path)
+    assert code == 3
+    assert "simulation stopped: non-finite state (test)" in capsys.readouterr().err
+    with np.load(tmp_path / "state.npz") as d:
+        assert d["stats_time"].shape == (2,)
+        assert float(d["time"]) == pytest.approx(2 / 60)
+
+
+def test_scenes_lists_builtin(capsys):
+    assert cli.main(["scenes"]) == 0
+    out = capsys.readouterr().out
+    lines = out.strip().splitlines()
+    assert any(line.split()[0] == "hang_two_corners" for line in lines)
+    assert load_scene("hang_two_corners").description in out
+
+
+def test_render_cloth_with_levels_and_pins(tmp_path):
+    from cloth_lod_ros.plotting import render_cloth
+    from cloth_lod_ros.mesh48 import base_mesh, refine_uniform
+    mesh = refine_uniform(base_mesh(1.0, 1.0, 2, 2), 2)
+    x = np.column_stack([mesh.uv, 0.1 * np.sin(3 * mesh.uv[:, 0])])
+    levels = mesh.levels.copy()
+    levels[::3] += 1                                          # more than one level
+    path = tmp_path / "p.png"
+    render_cloth(path, x, mesh.triangles, levels, np.array([0, 4]), title="t")
+    assert path.read_bytes()[:8] == PNG_MAGIC
+    flat = tmp_path / "flat.png"                              # degenerate extent
+    render_cloth(flat, np.zeros((mesh.vertex_count, 3)), mesh.triangles)
+    assert flat.read_bytes()[:8] == PNG_MAGIC
+
+
+def test_console_script_subprocess(tmp_path):
+    script = Path(sys.executable).parent / "cloth-lod"
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "cloth_lod_ros.cli"]
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(
+        p for p in (str(REPO), env.get("PYTHONPATH", "")) if p)
+    env["MPLBACKEND"] = "Agg"
+    out = tmp_path / "sub.npz"
+    proc = subprocess.run(cmd + ["run", "hang_two_corners", "--level", "1",
+                                 "--duration", "0.05", "--out", str(out)],
+                          cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "wrote" in proc.stdout
+    with np.load(out) as d:
+        assert float(d["time"]) == pytest.approx(0.05, abs=1e-9)
+    assert out.with_suffix(".png").read_bytes()[:8] == PNG_MAGIC
+
+    bad = subprocess.run(cmd + ["run", "hang_two_corners", "--set", "material.density=-1"],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 2
+    assert "material.density" in bad.stderr and "Traceback" not in bad.stderr
