@@ -96,7 +96,7 @@ class MaterialConfig:
                                    doc="Rayleigh coefficient: damping = this * stiffness")
     shear_damping: float = _spec("float", "s", ge=0, default=0.01, doc="as stretch_damping")
     bend_damping: float = _spec("float", "s", ge=0, default=0.1, doc="as stretch_damping")
-    air_drag: float = _spec("float", "1/s", ge=0, default=0.05,
+    air_drag: float = _spec("float", "1/s", ge=0, default=0.5,
                             doc="drag force = -air_drag * mass * velocity")
 
 

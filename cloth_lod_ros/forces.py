@@ -45,7 +45,8 @@ import numpy as np
 
 from .mesh48 import RestMesh
 
-__all__ = ["Elements", "Evaluation", "precompute", "evaluate", "hinge_angles"]
+__all__ = ["Elements", "Evaluation", "precompute", "evaluate", "elastic_energies",
+           "hinge_angles"]
 
 
 @dataclass(frozen=True)
@@ -291,6 +292,28 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
         stiffness_times_velocity=kv,
         triangle_blocks=tri_blocks, hinge_blocks=hinge_blocks,
         hinge_angle=theta, hinge_rate=theta_dot)
+
+
+def elastic_energies(elements: Elements, material, x: np.ndarray) -> dict:
+    """Stretch, shear and bend energies (J) and max strain at positions ``x`` (m).
+
+    The cheap path for statistics: no gradients, no blocks.
+    """
+    xt = x[elements.triangles]
+    wu = np.einsum("tk,tkd->td", elements.coef_u, xt)
+    wv = np.einsum("tk,tkd->td", elements.coef_v, xt)
+    len_u, len_v = np.sqrt(_dot(wu, wu)), np.sqrt(_dot(wv, wv))
+    area = elements.area
+    theta = hinge_angles(x, elements.hinge_vertices) if len(elements.hinge_vertices) \
+        else np.zeros(0)
+    strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
+    return dict(
+        stretch=float(0.5 * material.stretch_stiffness
+                      * np.sum(area * ((len_u - 1.0)**2 + (len_v - 1.0)**2))),
+        shear=float(0.5 * material.shear_stiffness * np.sum(area * _dot(wu, wv)**2)),
+        bend=float(0.5 * material.bend_stiffness
+                   * np.sum(elements.hinge_weight * theta**2)),
+        max_strain=float(strain.max()) if len(strain) else 0.0)
 
 
 def _scatter(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import SceneConfig, load_scene
-from .forces import Elements, evaluate, precompute
+from .forces import Elements, elastic_energies, evaluate, precompute
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
 from .solver import Constraints, SparsePattern, filtered_pcg, solve_projected_direct
@@ -130,7 +130,6 @@ class SolveReport:
     force_ms: float
     assembly_ms: float
     solve_ms: float
-    evaluation: object
 
 
 class ImplicitEulerSolver:
@@ -204,7 +203,7 @@ class ImplicitEulerSolver:
         new_v[held] = target_velocity
         self._previous_dv = result.dv
         report = SolveReport(result.iterations, result.residual, result.converged,
-                             1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), ev)
+                             1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2))
         return ClothState(new_x, new_v, state.time + h), report
 
 
@@ -299,7 +298,8 @@ class ClothSim:
         held = self._held(self.state.time + h)
         new_state, report = self.solver.step(self.elements, self.masses, self.state,
                                              held, h)
-        if not (np.all(np.isfinite(new_state.positions))
+        if not (np.isfinite(report.residual)
+                and np.all(np.isfinite(new_state.positions))
                 and np.all(np.isfinite(new_state.velocities))):
             self.solver.reset_topology()
             raise SimulationError(f"non-finite state at t = {new_state.time:.4f} s "
@@ -311,8 +311,8 @@ class ClothSim:
                             "after %d iterations (%d such steps so far)", new_state.time,
                             report.residual, report.iterations, self._unconverged_steps)
         self.state = new_state
-        ev = report.evaluation
         x, v = new_state.positions, new_state.velocities
+        elastic = elastic_energies(self.elements, self.scene.material, x)
         stats = StepStats(
             step_index=len(self.stats), time=new_state.time,
             vertex_count=self.mesh.vertex_count, triangle_count=self.mesh.triangle_count,
@@ -322,10 +322,8 @@ class ClothSim:
             assembly_ms=report.assembly_ms, solve_ms=report.solve_ms,
             kinetic_energy=float(0.5 * np.sum(self.masses * np.sum(v * v, axis=1))),
             gravity_energy=float(-np.sum(self.masses * (x @ self.solver.gravity))),
-            # Elastic energies and strain are those of the start of the step
-            # (already computed for the forces); cheap and one step behind.
-            stretch_energy=ev.stretch_energy, shear_energy=ev.shear_energy,
-            bend_energy=ev.bend_energy, max_strain=ev.max_strain,
+            stretch_energy=elastic["stretch"], shear_energy=elastic["shear"],
+            bend_energy=elastic["bend"], max_strain=elastic["max_strain"],
             max_speed=float(np.sqrt(np.max(np.sum(v * v, axis=1)))))
         self.stats.append(stats)
         return stats
@@ -384,9 +382,8 @@ class ClothSim:
 
     def energy(self) -> dict:
         """Energies (J) of the current state: kinetic, gravity, stretch, shear, bend."""
-        ev = evaluate(self.elements, self.scene.material, self.state.positions,
-                      self.state.velocities, with_blocks=False)
         x, v = self.state.positions, self.state.velocities
+        elastic = elastic_energies(self.elements, self.scene.material, x)
         return dict(kinetic=float(0.5 * np.sum(self.masses * np.sum(v * v, axis=1))),
                     gravity=float(-np.sum(self.masses * (x @ self.solver.gravity))),
-                    stretch=ev.stretch_energy, shear=ev.shear_energy, bend=ev.bend_energy)
+                    stretch=elastic["stretch"], shear=elastic["shear"], bend=elastic["bend"])
