@@ -1,7 +1,7 @@
 """``cloth-lod``: the command-line tool.
 
     cloth-lod run SCENE [--duration S] [--dt H] [--level L] [--set key=value ...]
-                        [--out state.npz] [--png picture.png] [--quiet]
+                        [--out state.npz] [--png picture.png] [--frames N] [--quiet]
     cloth-lod scenes
 
 ``run`` simulates headless and writes the final state (x, v, uv, mass,
@@ -71,6 +71,11 @@ def _summary(sim: ClothSim, wall: float) -> str:
     return "\n".join(lines)
 
 
+def _frame(sim: ClothSim, prefix: str = ""):
+    return (sim.positions.copy(), sim.triangles.copy(), sim.triangle_levels.copy(),
+            f"{prefix}t = {sim.time:.2f} s, {sim.mesh.triangle_count} triangles")
+
+
 def _cmd_run(args) -> int:
     overrides = list(args.set or [])
     if args.dt is not None:
@@ -85,12 +90,20 @@ def _cmd_run(args) -> int:
     png = Path(args.png) if args.png else out.with_suffix(".png")
     steps = int(round(scene.simulation.duration / scene.simulation.time_step))
     report_every = max(steps // 10, 1)
+    # Steps after which a picture panel is taken (the last one is the final state).
+    frame_count = max(int(args.frames), 1)
+    frame_steps = set(np.linspace(0, steps, frame_count).round().astype(int)[1:-1])
+    frames = []
+    if frame_count > 1:
+        frames.append(_frame(sim))
 
     def progress(s, stats):
         if not args.quiet and (stats.step_index + 1) % report_every == 0:
             print(f"  t = {stats.time:6.3f} s  step {stats.step_ms:7.2f} ms  "
                   f"CG {stats.cg_iterations:4d}  KE {stats.kinetic_energy:.3e} J",
                   flush=True)
+        if stats.step_index + 1 in frame_steps:
+            frames.append(_frame(s))
 
     start = time.perf_counter()
     try:
@@ -104,11 +117,9 @@ def _cmd_run(args) -> int:
     save_state(out, sim)
     print(f"  wrote {out}")
     if not args.no_png:
-        from .plotting import render_cloth
-        render_cloth(png, sim.positions, sim.triangles, sim.triangle_levels,
-                     np.array([p.vertex for p in sim.pins], dtype=np.int64),
-                     title=f"{scene.name}, t = {sim.time:.2f} s, "
-                           f"{sim.mesh.triangle_count} triangles")
+        from .plotting import render_frames
+        frames.append(_frame(sim, f"{scene.name}, "))
+        render_frames(png, frames, np.array([p.vertex for p in sim.pins], dtype=np.int64))
         print(f"  wrote {png}")
     return 0
 
@@ -133,6 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", help="state file (.npz), default out/<scene>.npz")
     run.add_argument("--png", help="picture of the final state, default beside --out")
     run.add_argument("--no-png", action="store_true", help="do not write a picture")
+    run.add_argument("--frames", type=int, default=1,
+                     help="panels in the picture, evenly spaced in time (default 1: final state)")
     run.add_argument("--quiet", action="store_true", help="no progress lines")
     run.set_defaults(func=_cmd_run)
     scenes = sub.add_parser("scenes", help="list the built-in scenes")
