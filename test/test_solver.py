@@ -133,6 +133,7 @@ def test_pattern_assembly_matches_a_dense_reference():
     reference += np.kron(np.diag(diagonal), np.eye(3))
     np.testing.assert_allclose(assembled.toarray(), reference, rtol=1e-13, atol=1e-15)
     blocks = pattern.diagonal_blocks(assembled)
+    dense = assembled.toarray()
     for i in range(mesh.vertex_count):
-        np.testing.assert_array_equal(blocks[i], assembled[3 * i:3 * i + 3, 3 * i:3 * i + 3].toarray())
-    assert isinstance(assembled, sp.csr_matrix)
+        np.testing.assert_array_equal(blocks[i], dense[3 * i:3 * i + 3, 3 * i:3 * i + 3])
+    assert sp.issparse(assembled) and assembled.blocksize == (3, 3)
