@@ -1,0 +1,350 @@
+"""The 4-8 hierarchy at run time: split and merge as invertible operations.
+
+Mechanism only (paper §3, §5.2–§5.3, §5.5; DESIGN.md §4); *when* to split or merge
+is decided by :mod:`cloth_lod_ros.lod`.
+
+Storage is a pool of numpy arrays with capacity growth and free lists, not one
+Python object per element:
+
+* vertices: rest ``uv``, state ``x``/``v``, ``mass_units``, active flag, and for
+  a vertex made by a split the hypotenuse it bisected;
+* triangles: ``(apex, left, right)`` as in :mod:`cloth_lod_ros.mesh48`, level,
+  parent, two children, active flag and the time it was (re)activated.
+
+A split keeps its parents in memory (inactive); a merge frees the children and
+re-activates the parents (paper §5.3).  Active edges are indexed in a dict from
+the sorted vertex pair to its one or two active triangles, which is what finds
+the neighbour across a hypotenuse.
+
+**Operations are values.**  ``Split(edge)`` bisects the hypotenuse ``edge`` shared
+by its one or two triangles; ``Merge(edge)`` removes that edge's midpoint and
+restores the two triangles.  ``Split(e).inverse() == Merge(e)`` and vice versa;
+:meth:`Hierarchy48.refine` returns the list of splits it performed (forced ones
+first) so ``for op in reversed(ops): h.apply(op.inverse())`` undoes it exactly.
+
+**Conservation** (paper §5.5).  Each triangle gives a third of its mass to each
+corner.  Masses are kept as exact dyadic *units* (a level-L triangle gives
+``2**-L`` units to each corner) times ``base_triangle_area * density / 3``, so a
+split followed by a merge restores every mass bit for bit and the total is
+``3 × base triangle count`` units exactly.  A split moves mass from the edge ends
+to the new midpoint particle, which takes the average velocity, so momentum is
+unchanged.  A merge gives the removed particle's mass back to the edge ends and
+adds the same velocity change to both so that momentum is unchanged (zero when
+the midpoint still moves with the average of the ends, so split-then-merge
+restores velocities exactly).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .mesh48 import MeshError, RestMesh
+
+__all__ = ["Split", "Merge", "Hierarchy48"]
+
+
+def _key(a: int, b: int) -> tuple[int, int]:
+    return (a, b) if a < b else (b, a)
+
+
+@dataclass(frozen=True)
+class Split:
+    """Bisect the hypotenuse ``edge`` (sorted pool vertex ids) of its block."""
+
+    edge: tuple[int, int]
+
+    def inverse(self) -> "Merge":
+        return Merge(self.edge)
+
+
+@dataclass(frozen=True)
+class Merge:
+    """Remove the midpoint of ``edge`` and restore the triangles it split."""
+
+    edge: tuple[int, int]
+
+    def inverse(self) -> Split:
+        return Split(self.edge)
+
+
+class Hierarchy48:
+    """A 4-8 mesh that can be refined and simplified locally.
+
+    Args:
+        base: level-0 mesh from :func:`cloth_lod_ros.mesh48.base_mesh`.
+        positions: ``(n0, 3)`` initial positions of the base vertices, m.
+        density: areal density, kg/m².
+        max_level: deepest level a triangle may reach.
+    """
+
+    def __init__(self, base: RestMesh, positions: np.ndarray, density: float,
+                 max_level: int):
+        if np.any(base.levels != 0):
+            raise MeshError("a hierarchy starts from a level-0 mesh")
+        self.width, self.height = base.width, base.height
+        self.max_level = int(max_level)
+        n, t = base.vertex_count, base.triangle_count
+        # All base triangles are halves of equal square blocks.
+        base_area = 0.5 * (base.width * base.height) / (t / 2)
+        self.unit_mass = base_area * density / 3.0          # kg per mass unit
+        self.base_triangle_count = t
+        vcap, tcap = max(2 * n, 16), max(2 * t, 16)
+        self.uv = np.zeros((vcap, 2))
+        self.x = np.zeros((vcap, 3))
+        self.v = np.zeros((vcap, 3))
+        self.mass_units = np.zeros(vcap)
+        self.vertex_active = np.zeros(vcap, dtype=bool)
+        self.vertex_edge = np.full((vcap, 2), -1, dtype=np.int64)
+        self.tri = np.zeros((tcap, 3), dtype=np.int64)
+        self.level = np.zeros(tcap, dtype=np.int64)
+        self.parent = np.full(tcap, -1, dtype=np.int64)
+        self.children = np.full((tcap, 2), -1, dtype=np.int64)
+        self.tri_active = np.zeros(tcap, dtype=bool)
+        self.birth = np.zeros(tcap)
+        self.vertex_end, self.tri_end = n, t          # high-water marks
+        self._free_vertices: list[int] = []
+        self._free_triangles: list[int] = []
+        self.uv[:n] = base.uv
+        self.x[:n] = positions
+        self.vertex_active[:n] = True
+        self.tri[:t] = base.triangles
+        self._edges: dict[tuple[int, int], list[int]] = {}
+        self.midpoint: dict[tuple[int, int], int] = {}
+        self.diamond: dict[tuple[int, int], tuple[int, ...]] = {}
+        for k in range(t):
+            self._activate(k, 0.0)
+        self.version = 0            # bumped on every topology change
+
+    # -- pool management ----------------------------------------------------
+    def _new_vertex(self) -> int:
+        if self._free_vertices:
+            return self._free_vertices.pop()
+        if self.vertex_end == len(self.uv):
+            self._grow_vertices()
+        self.vertex_end += 1
+        return self.vertex_end - 1
+
+    def _grow_vertices(self) -> None:
+        cap = 2 * len(self.uv)
+        for name in ("uv", "x", "v", "mass_units", "vertex_active", "vertex_edge"):
+            old = getattr(self, name)
+            new = np.zeros((cap,) + old.shape[1:], dtype=old.dtype)
+            if name == "vertex_edge":
+                new[:] = -1
+            new[:len(old)] = old
+            setattr(self, name, new)
+
+    def _new_triangle(self) -> int:
+        if self._free_triangles:
+            return self._free_triangles.pop()
+        if self.tri_end == len(self.tri):
+            cap = 2 * len(self.tri)
+            for name, fill in (("tri", 0), ("level", 0), ("parent", -1), ("children", -1),
+                               ("tri_active", False), ("birth", 0.0)):
+                old = getattr(self, name)
+                new = np.full((cap,) + old.shape[1:], fill, dtype=old.dtype)
+                new[:len(old)] = old
+                setattr(self, name, new)
+        self.tri_end += 1
+        return self.tri_end - 1
+
+    def _activate(self, t: int, time: float) -> None:
+        a, b, c = (int(i) for i in self.tri[t])
+        for e in (_key(a, b), _key(b, c), _key(c, a)):
+            self._edges.setdefault(e, []).append(t)
+        self.mass_units[[a, b, c]] += 2.0 ** -int(self.level[t])
+        self.tri_active[t] = True
+        self.birth[t] = time
+
+    def _deactivate(self, t: int) -> None:
+        a, b, c = (int(i) for i in self.tri[t])
+        for e in (_key(a, b), _key(b, c), _key(c, a)):
+            users = self._edges[e]
+            users.remove(t)
+            if not users:
+                del self._edges[e]
+        self.mass_units[[a, b, c]] -= 2.0 ** -int(self.level[t])
+        self.tri_active[t] = False
+
+    # -- queries ------------------------------------------------------------
+    def hypotenuse(self, t: int) -> tuple[int, int]:
+        return _key(int(self.tri[t, 1]), int(self.tri[t, 2]))
+
+    def edge_triangles(self, edge: tuple[int, int]) -> list[int]:
+        """Active triangles on an edge (sorted vertex pair); empty if not an edge."""
+        return list(self._edges.get(_key(*edge), ()))
+
+    @property
+    def masses(self) -> np.ndarray:
+        """Masses of all pool slots (kg); inactive slots hold 0."""
+        return self.mass_units * self.unit_mass
+
+    def active_vertices(self) -> np.ndarray:
+        return np.flatnonzero(self.vertex_active[:self.vertex_end])
+
+    def active_triangles(self) -> np.ndarray:
+        return np.flatnonzero(self.tri_active[:self.tri_end])
+
+    def active_mesh(self) -> tuple[RestMesh, np.ndarray, np.ndarray]:
+        """Compact mesh of the active elements.
+
+        Returns:
+            ``(mesh, vertex_ids, triangle_ids)``: compact vertex ``i`` is pool
+            vertex ``vertex_ids[i]``, compact triangle ``k`` is pool triangle
+            ``triangle_ids[k]`` (both increasing).
+        """
+        vids = self.active_vertices()
+        tids = self.active_triangles()
+        remap = np.full(self.vertex_end, -1, dtype=np.int64)
+        remap[vids] = np.arange(len(vids))
+        mesh = RestMesh(uv=self.uv[vids].copy(), triangles=remap[self.tri[tids]],
+                        levels=self.level[tids].copy(), width=self.width,
+                        height=self.height)
+        return mesh, vids, tids
+
+    def mergeable_edges(self) -> list[tuple[int, int]]:
+        """Split edges whose children are all active (their merge is valid)."""
+        out = []
+        for edge, parents in self.diamond.items():
+            kids = self.children[list(parents)]
+            if self.tri_active[kids].all():
+                out.append(edge)
+        return out
+
+    # -- operations ---------------------------------------------------------
+    def apply(self, op, time: float = 0.0) -> None:
+        """Apply one :class:`Split` or :class:`Merge`.
+
+        Raises:
+            MeshError: the operation's precondition does not hold (a split of an
+                edge that is not the hypotenuse of all its triangles, or beyond
+                the maximum level; a merge of an edge that is not split or
+                whose children are not all leaves).
+        """
+        if isinstance(op, Split):
+            self._split(op.edge, time)
+        elif isinstance(op, Merge):
+            self._merge(op.edge, time)
+        else:
+            raise TypeError(f"not a mesh operation: {op!r}")
+        self.version += 1
+
+    def _split(self, edge: tuple[int, int], time: float) -> None:
+        edge = _key(*edge)
+        tris = self.edge_triangles(edge)
+        if not tris or any(self.hypotenuse(t) != edge for t in tris):
+            raise MeshError(f"cannot split {edge}: not the hypotenuse of all its triangles")
+        level = int(self.level[tris[0]])
+        if level >= self.max_level:
+            raise MeshError(f"cannot split {edge}: triangles already at the maximum level")
+        left, right = edge
+        m = self._new_vertex()
+        self.uv[m] = 0.5 * (self.uv[left] + self.uv[right])
+        self.x[m] = 0.5 * (self.x[left] + self.x[right])        # face rule: nothing moves
+        self.v[m] = 0.5 * (self.v[left] + self.v[right])        # keeps momentum
+        self.mass_units[m] = 0.0
+        self.vertex_active[m] = True
+        self.vertex_edge[m] = edge
+        for t in tris:
+            apex, l, r = (int(i) for i in self.tri[t])
+            self._deactivate(t)
+            kids = (self._new_triangle(), self._new_triangle())
+            for kid, corners in zip(kids, ((m, apex, l), (m, r, apex))):
+                self.tri[kid] = corners
+                self.level[kid] = level + 1
+                self.parent[kid] = t
+                self.children[kid] = -1
+                self._activate(kid, time)
+            self.children[t] = kids
+        self.midpoint[edge] = m
+        self.diamond[edge] = tuple(tris)
+
+    def _merge(self, edge: tuple[int, int], time: float) -> None:
+        edge = _key(*edge)
+        if edge not in self.diamond:
+            raise MeshError(f"cannot merge {edge}: it is not split")
+        parents = self.diamond[edge]
+        kids = self.children[list(parents)].ravel()
+        if not self.tri_active[kids].all():
+            raise MeshError(f"cannot merge {edge}: its children are refined further")
+        m = self.midpoint[edge]
+        left, right = edge
+        mass_m = self.mass_units[m]
+        for t in parents:
+            for kid in self.children[t]:
+                self._deactivate(int(kid))
+                self._free_triangles.append(int(kid))
+            self.children[t] = -1
+            self._activate(t, time)
+        # Momentum: m's mass went back to the edge ends (equally); give both the
+        # same velocity change so that Σ m v is unchanged.
+        defect = mass_m * (self.v[m] - 0.5 * (self.v[left] + self.v[right]))
+        gained = self.mass_units[left] + self.mass_units[right]
+        if np.any(defect != 0.0):
+            self.v[[left, right]] += defect / gained
+        self.vertex_active[m] = False
+        self.mass_units[m] = 0.0
+        self.vertex_edge[m] = -1
+        self.x[m] = 0.0
+        self.v[m] = 0.0
+        self._free_vertices.append(m)
+        del self.midpoint[edge]
+        del self.diamond[edge]
+
+    def refine(self, t: int, time: float = 0.0) -> list[Split]:
+        """Bisect active triangle ``t`` (paper's ``Subdivide48``), forcing splits.
+
+        If the triangle across ``t``'s hypotenuse is coarser, it is refined first
+        (recursively), so levels across any edge differ by at most one.  Returns
+        the splits performed, forced ones first; empty if ``t`` is inactive or at
+        the maximum level.
+        """
+        ops: list[Split] = []
+        self._refine(int(t), time, ops)
+        return ops
+
+    def _refine(self, t: int, time: float, ops: list[Split]) -> bool:
+        if not self.tri_active[t] or self.level[t] >= self.max_level:
+            return False
+        edge = self.hypotenuse(t)
+        for other in self.edge_triangles(edge):
+            if other != t and self.hypotenuse(other) != edge:
+                # Coarser neighbour (its leg is our hypotenuse): refine it first.
+                if not self._refine(other, time, ops):
+                    return False
+        op = Split(edge)
+        self.apply(op, time)
+        ops.append(op)
+        return True
+
+    def refine_uniform(self, levels: int, time: float = 0.0) -> None:
+        """Split every active triangle ``levels`` times (set-up, not the time step)."""
+        for _ in range(int(levels)):
+            for t in self.active_triangles():
+                if self.tri_active[t]:
+                    self.refine(int(t), time)
+
+    # -- checks -------------------------------------------------------------
+    def check(self) -> None:
+        """Raise :class:`MeshError` unless the active mesh satisfies the 4-8 invariants.
+
+        Conforming and right isosceles (:func:`cloth_lod_ros.mesh48.check_mesh`),
+        levels across every edge differ by at most one, mass units match the
+        active triangles exactly, and the total is ``3 × base triangles``.
+        """
+        from .mesh48 import build_hinges, check_mesh
+        mesh, vids, tids = self.active_mesh()
+        check_mesh(mesh)
+        hinges = build_hinges(mesh.triangles, mesh.vertex_count)
+        lev = mesh.levels[hinges.triangles]
+        if np.any(np.abs(lev[:, 0] - lev[:, 1]) > 1):
+            raise MeshError("levels across an edge differ by more than one")
+        units = np.bincount(mesh.triangles.ravel(),
+                            weights=np.repeat(2.0 ** -mesh.levels, 3),
+                            minlength=mesh.vertex_count)
+        if not np.array_equal(units, self.mass_units[vids]):
+            raise MeshError("mass units do not match the active triangles")
+        if self.mass_units[vids].sum() != 3 * self.base_triangle_count:
+            raise MeshError("total mass is not conserved")
