@@ -22,7 +22,7 @@ from typing import Any
 import yaml
 
 __all__ = [
-    "SceneError", "ClothConfig", "MaterialConfig", "PinConfig",
+    "SceneError", "ClothConfig", "MaterialConfig", "PinConfig", "LodConfig",
     "SimulationConfig", "SolverConfig", "SceneConfig",
     "load_scene", "scene_from_dict", "scene_to_dict", "apply_overrides",
     "find_scene_file", "builtin_scene_names", "scenes_directory",
@@ -130,6 +130,28 @@ class SolverConfig:
 
 
 @dataclass(frozen=True)
+class LodConfig:
+    """Adaptive level of detail (paper §5). With ``enabled``, ``cloth.level`` is the
+    maximum level and the run starts at ``initial_level``."""
+
+    enabled: bool = _spec("bool", default=False, doc="adapt the mesh at run time")
+    initial_level: int = _spec("int", "", ge=0, le=12, default=0,
+                               doc="uniform level the adaptive run starts from")
+    refine_threshold: float = _spec("float", "m", gt=0, default=0.002,
+                                    doc="refine an edge whose deviation d exceeds this")
+    coarsen_threshold: float = _spec("float", "m", gt=0, default=0.0005,
+                                     doc="merge only where every d is below this")
+    max_hinge_rate: float = _spec("float", "rad/s", gt=0, default=0.5,
+                                  doc="merge only where every |dtheta/dt| is below this")
+    max_bend_force: float = _spec("float", "N", gt=0, default=1e-3,
+                                  doc="merge only where every bend force is below this")
+    min_lifetime: float = _spec("float", "s", ge=0, default=0.2,
+                                doc="a triangle must exist this long before a merge removes it")
+    check_interval: int = _spec("int", "steps", ge=1, default=1,
+                                doc="evaluate the criterion every this many steps")
+
+
+@dataclass(frozen=True)
 class SceneConfig:
     cloth: ClothConfig = _spec("section")
     simulation: SimulationConfig = _spec("section")
@@ -138,10 +160,11 @@ class SceneConfig:
     material: MaterialConfig = _spec("section", default_factory=MaterialConfig)
     pins: tuple = _spec("pins", default=())
     solver: SolverConfig = _spec("section", default_factory=SolverConfig)
+    lod: LodConfig = _spec("section", default_factory=LodConfig)
 
 
 _SECTION_TYPES = {"cloth": ClothConfig, "simulation": SimulationConfig,
-                  "material": MaterialConfig, "solver": SolverConfig}
+                  "material": MaterialConfig, "solver": SolverConfig, "lod": LodConfig}
 
 
 def _number(value: Any, path: str, integer: bool = False) -> float:
@@ -199,6 +222,10 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
         # would not round-trip.
         out = vec if abs(norm - 1.0) <= 4 * sys.float_info.epsilon else tuple(
             c / norm for c in vec)
+    elif kind == "bool":
+        if not isinstance(value, bool):
+            raise SceneError(f"field '{path}' must be true or false, got {value!r}")
+        return value
     elif kind == "str":
         if not isinstance(value, str):
             raise SceneError(f"field '{path}' must be a string, got {value!r}")
@@ -264,6 +291,13 @@ def scene_from_dict(data: Any) -> SceneConfig:
     dot = sum(a * b for a, b in zip(cloth.u_axis, cloth.v_axis))
     if abs(dot) > 1e-9:
         raise SceneError("field 'cloth.v_axis' must be perpendicular to 'cloth.u_axis'")
+    lod = scene.lod
+    if lod.coarsen_threshold >= lod.refine_threshold:
+        raise SceneError(f"field 'lod.coarsen_threshold' ({lod.coarsen_threshold} m) must be "
+                         f"below 'lod.refine_threshold' ({lod.refine_threshold} m)")
+    if lod.enabled and lod.initial_level > cloth.level:
+        raise SceneError(f"field 'lod.initial_level' ({lod.initial_level}) must not exceed "
+                         f"'cloth.level' ({cloth.level}), the maximum level with LOD on")
     for i, pin in enumerate(scene.pins):
         u, v = pin.uv
         if not (0.0 <= u <= cloth.width and 0.0 <= v <= cloth.height):

@@ -61,6 +61,7 @@ class Elements:
         hinge_vertices: ``(h, 4)`` ``(e0, e1, o0, o1)``: shared edge then the
             opposite vertex of each triangle.
         hinge_weight: ``(h,)`` dimensionless ``c_e`` (see module docstring).
+        hinge_triangles: ``(h, 2)`` the two triangles of each hinge.
         vertex_count: number of vertices.
     """
 
@@ -70,6 +71,7 @@ class Elements:
     coef_v: np.ndarray
     hinge_vertices: np.ndarray
     hinge_weight: np.ndarray
+    hinge_triangles: np.ndarray
     vertex_count: int
 
 
@@ -98,7 +100,8 @@ def precompute(mesh: RestMesh) -> Elements:
     return Elements(
         triangles=tri.copy(), area=area, coef_u=coef_u, coef_v=coef_v,
         hinge_vertices=np.column_stack([hinges.edge, hinges.opposite]),
-        hinge_weight=weight, vertex_count=mesh.vertex_count)
+        hinge_weight=weight, hinge_triangles=hinges.triangles,
+        vertex_count=mesh.vertex_count)
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -97,6 +97,7 @@ class Hierarchy48:
         self.mass_units = np.zeros(vcap)
         self.vertex_active = np.zeros(vcap, dtype=bool)
         self.vertex_edge = np.full((vcap, 2), -1, dtype=np.int64)
+        self.vertex_parents = np.full((vcap, 2), -1, dtype=np.int64)
         self.tri = np.zeros((tcap, 3), dtype=np.int64)
         self.level = np.zeros(tcap, dtype=np.int64)
         self.parent = np.full(tcap, -1, dtype=np.int64)
@@ -128,10 +129,11 @@ class Hierarchy48:
 
     def _grow_vertices(self) -> None:
         cap = 2 * len(self.uv)
-        for name in ("uv", "x", "v", "mass_units", "vertex_active", "vertex_edge"):
+        for name in ("uv", "x", "v", "mass_units", "vertex_active", "vertex_edge",
+                     "vertex_parents"):
             old = getattr(self, name)
             new = np.zeros((cap,) + old.shape[1:], dtype=old.dtype)
-            if name == "vertex_edge":
+            if name in ("vertex_edge", "vertex_parents"):
                 new[:] = -1
             new[:len(old)] = old
             setattr(self, name, new)
@@ -204,14 +206,27 @@ class Hierarchy48:
                         height=self.height)
         return mesh, vids, tids
 
+    def split_vertices(self) -> tuple[np.ndarray, np.ndarray]:
+        """Particles made by a split whose merge is valid now (vectorised).
+
+        Returns:
+            ``(vertices (k,), children (k, 4))``: pool ids of midpoints whose
+            children are all active leaves, and those children (``-1`` padding
+            for a border diamond, which has 2).
+        """
+        vids = self.active_vertices()
+        vids = vids[self.vertex_parents[vids, 0] >= 0]
+        parents = self.vertex_parents[vids]                       # (k, 2)
+        kids = self.children[np.maximum(parents, 0)].reshape(len(vids), 4)
+        kids[np.repeat(parents < 0, 2, axis=1)] = -1
+        leaf = np.where(kids >= 0, self.tri_active[np.maximum(kids, 0)], True)
+        ok = leaf.all(axis=1)
+        return vids[ok], kids[ok]
+
     def mergeable_edges(self) -> list[tuple[int, int]]:
         """Split edges whose children are all active (their merge is valid)."""
-        out = []
-        for edge, parents in self.diamond.items():
-            kids = self.children[list(parents)]
-            if self.tri_active[kids].all():
-                out.append(edge)
-        return out
+        vids, _ = self.split_vertices()
+        return [(int(a), int(b)) for a, b in self.vertex_edge[vids]]
 
     # -- operations ---------------------------------------------------------
     def apply(self, op, time: float = 0.0) -> None:
@@ -247,6 +262,7 @@ class Hierarchy48:
         self.mass_units[m] = 0.0
         self.vertex_active[m] = True
         self.vertex_edge[m] = edge
+        self.vertex_parents[m] = (tris[0], tris[1] if len(tris) == 2 else -1)
         for t in tris:
             apex, l, r = (int(i) for i in self.tri[t])
             self._deactivate(t)
@@ -287,6 +303,7 @@ class Hierarchy48:
         self.vertex_active[m] = False
         self.mass_units[m] = 0.0
         self.vertex_edge[m] = -1
+        self.vertex_parents[m] = -1
         self.x[m] = 0.0
         self.v[m] = 0.0
         self._free_vertices.append(m)

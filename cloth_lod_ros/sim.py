@@ -28,6 +28,8 @@ import numpy as np
 
 from .config import SceneConfig, load_scene
 from .forces import Elements, elastic_energies, evaluate, precompute
+from .hierarchy import Hierarchy48
+from .lod import LodPolicy
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
 from .solver import Constraints, SparsePattern, filtered_pcg, solve_projected_direct
@@ -60,8 +62,10 @@ class Pin:
 
     Attributes:
         name: label.
-        uv: requested material point (m); ``vertex`` is the particle holding it
-            and ``snap_distance`` (m) how far that particle's rest point is.
+        uv: requested material point (m); ``vertex`` is the (compact) index of
+            the particle holding it, ``node`` its permanent id (pool id with LOD
+            on; equal to ``vertex`` otherwise), and ``snap_distance`` (m) how far
+            that particle's rest point is.
         anchor: ``(3,)`` target used when there are no waypoints (m).
         waypoints: ``(w, 4)`` rows ``[t, x, y, z]``; linear in between, held at
             the ends.
@@ -72,6 +76,7 @@ class Pin:
     uv: np.ndarray
     vertex: int
     snap_distance: float
+    node: int
     anchor: np.ndarray
     waypoints: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     release_time: float | None = None
@@ -89,17 +94,27 @@ class Pin:
 
 @dataclass
 class StepStats:
-    """Statistics of one time step (SI units; times in milliseconds)."""
+    """Statistics of one time step (SI units; times in milliseconds).
+
+    ``vertex_count``/``triangle_count``/``triangles_per_level`` describe the
+    mesh the step simulated (after this step's refines and merges);
+    ``step_ms`` includes ``lod_ms`` (criterion, operations and the refresh of
+    compact arrays) and the physics (``force_ms + assembly_ms + solve_ms``).
+    """
 
     step_index: int
     time: float
     vertex_count: int
     triangle_count: int
     pinned_count: int
+    refines: int
+    merges: int
+    triangles_per_level: tuple
     cg_iterations: int
     residual: float
     converged: bool
     step_ms: float
+    lod_ms: float
     force_ms: float
     assembly_ms: float
     solve_ms: float
@@ -146,9 +161,13 @@ class ImplicitEulerSolver:
         self._pattern: SparsePattern | None = None
         self._previous_dv: np.ndarray | None = None
 
-    def reset_topology(self) -> None:
+    def reset_topology(self, elements: Elements | None = None) -> None:
+        """Forget per-topology caches; with ``elements``, build the new pattern now."""
         self._pattern = None
         self._previous_dv = None
+        if elements is not None:
+            self._pattern = SparsePattern(elements.vertex_count,
+                                          [elements.triangles, elements.hinge_vertices])
 
     def step(self, elements: Elements, masses: np.ndarray, state: ClothState,
              constraints_targets: tuple[np.ndarray, np.ndarray], h: float):
@@ -220,21 +239,48 @@ class ClothSim:
         self.scene = scene
         cloth = scene.cloth
         base = base_mesh(cloth.width, cloth.height, *cloth.base_blocks)
-        self.mesh: RestMesh = refine_uniform(base, cloth.level)
-        self.elements: Elements = precompute(self.mesh)
-        self.masses = lumped_masses(self.mesh.uv, self.mesh.triangles,
-                                    scene.material.density)
         origin = np.asarray(cloth.origin, dtype=float)
         axes = np.array([cloth.u_axis, cloth.v_axis], dtype=float)
-        positions = origin + self.mesh.uv @ axes
-        self.state = ClothState(positions, np.zeros_like(positions), 0.0)
-        self.pins = [self._make_pin(p) for p in scene.pins]
         self.solver = ImplicitEulerSolver(scene.solver, scene.material,
                                           scene.simulation.gravity)
         self.time_step = scene.simulation.time_step
         self.stats: list[StepStats] = []
         self._locator: PointLocator | None = None
         self._unconverged_steps = 0
+        self.max_level = cloth.level
+        self.hierarchy: Hierarchy48 | None = None
+        self.lod_policy: LodPolicy | None = None
+        if scene.lod.enabled:
+            # Adaptive: the hierarchy owns the particles; the step works on
+            # compact copies of the active ones (DESIGN.md §4).
+            self.hierarchy = Hierarchy48(base, origin + base.uv @ axes,
+                                         scene.material.density, max_level=cloth.level)
+            self.hierarchy.refine_uniform(scene.lod.initial_level)
+            self.lod_policy = LodPolicy(scene.lod, scene.material.bend_stiffness)
+            self.state = ClothState(np.zeros((0, 3)), np.zeros((0, 3)), 0.0)
+            self._adopt_hierarchy()
+        else:
+            self.mesh: RestMesh = refine_uniform(base, cloth.level)
+            self.elements: Elements = precompute(self.mesh)
+            self.masses = lumped_masses(self.mesh.uv, self.mesh.triangles,
+                                        scene.material.density)
+            self.vertex_ids = np.arange(self.mesh.vertex_count)
+            positions = origin + self.mesh.uv @ axes
+            self.state = ClothState(positions, np.zeros_like(positions), 0.0)
+        self.pins = [self._make_pin(p) for p in scene.pins]
+
+    def _adopt_hierarchy(self) -> None:
+        """Refresh the compact arrays after the hierarchy's topology changed."""
+        h = self.hierarchy
+        self.mesh, self.vertex_ids, self.triangle_ids = h.active_mesh()
+        self.elements = precompute(self.mesh)
+        self.masses = h.masses[self.vertex_ids]
+        self.state = ClothState(h.x[self.vertex_ids].copy(), h.v[self.vertex_ids].copy(),
+                                self.state.time)
+        self.solver.reset_topology(self.elements)
+        self._locator = None
+        for pin in getattr(self, "pins", ()):
+            pin.vertex = int(np.searchsorted(self.vertex_ids, pin.node))
 
     @classmethod
     def from_scene(cls, scene: str | os.PathLike,
@@ -251,6 +297,7 @@ class ClothSim:
             log.warning("pin %r at uv=%s snapped to the nearest particle uv=%s (%.4g m away)",
                         cfg.name, uv.tolist(), self.mesh.uv[vertex].tolist(), dist[vertex])
         return Pin(name=cfg.name, uv=uv, vertex=vertex, snap_distance=float(dist[vertex]),
+                   node=int(self.vertex_ids[vertex]),
                    anchor=self.state.positions[vertex].copy(),
                    waypoints=np.asarray(cfg.waypoints, dtype=float).reshape(-1, 4),
                    release_time=cfg.release_time)
@@ -295,6 +342,10 @@ class ClothSim:
         """
         h = self.time_step
         start = _time.perf_counter()
+        refines = merges = 0
+        if self.hierarchy is not None and len(self.stats) % self.scene.lod.check_interval == 0:
+            refines, merges = self._adapt()
+        lod_ms = 1e3 * (_time.perf_counter() - start)
         held = self._held(self.state.time + h)
         new_state, report = self.solver.step(self.elements, self.masses, self.state,
                                              held, h)
@@ -313,12 +364,16 @@ class ClothSim:
         self.state = new_state
         x, v = new_state.positions, new_state.velocities
         elastic = elastic_energies(self.elements, self.scene.material, x)
+        per_level = np.bincount(self.mesh.levels, minlength=self.max_level + 1)
         stats = StepStats(
             step_index=len(self.stats), time=new_state.time,
             vertex_count=self.mesh.vertex_count, triangle_count=self.mesh.triangle_count,
-            pinned_count=len(held[0]), cg_iterations=report.iterations,
+            pinned_count=len(held[0]), refines=refines, merges=merges,
+            triangles_per_level=tuple(int(c) for c in per_level),
+            cg_iterations=report.iterations,
             residual=report.residual, converged=report.converged,
-            step_ms=1e3 * (_time.perf_counter() - start), force_ms=report.force_ms,
+            step_ms=1e3 * (_time.perf_counter() - start), lod_ms=lod_ms,
+            force_ms=report.force_ms,
             assembly_ms=report.assembly_ms, solve_ms=report.solve_ms,
             kinetic_energy=float(0.5 * np.sum(self.masses * np.sum(v * v, axis=1))),
             gravity_energy=float(-np.sum(self.masses * (x @ self.solver.gravity))),
@@ -327,6 +382,23 @@ class ClothSim:
             max_speed=float(np.sqrt(np.max(np.sum(v * v, axis=1)))))
         self.stats.append(stats)
         return stats
+
+    def _adapt(self) -> tuple[int, int]:
+        """Evaluate the LOD criterion and refine/simplify; returns (splits, merges)."""
+        h, time = self.hierarchy, self.state.time
+        held_nodes = np.array([p.node for p in self.pins if p.active(time)], dtype=np.int64)
+        decision = self.lod_policy.decide(h, self.elements, self.vertex_ids,
+                                          self.triangle_ids, self.state.positions,
+                                          self.state.velocities, time, held_nodes)
+        if not decision.refine and not decision.merge:
+            return 0, 0
+        # The hierarchy's copy of the state is only current at topology changes.
+        h.x[self.vertex_ids] = self.state.positions
+        h.v[self.vertex_ids] = self.state.velocities
+        splits, merges = LodPolicy.apply(h, decision, time)
+        if splits or merges:
+            self._adopt_hierarchy()
+        return splits, merges
 
     def run(self, duration: float | None = None, callback=None) -> list[StepStats]:
         """Step until ``duration`` more seconds (default: the scene's) have passed."""

@@ -1,0 +1,163 @@
+"""Level-of-detail policy: when to refine and when to simplify (paper §5.1, §5.4).
+
+Policy only; the mechanism is :class:`cloth_lod_ros.hierarchy.Hierarchy48`.
+
+**Criterion** (paper §5.1, Fig. 6).  For each interior edge, θ is the angle
+between the two triangle normals and L the mean distance of the two opposite
+vertices from the edge.  The pair is replaced by two equal triangles of height
+L on a circle through both apexes and the edge midpoint; the distance of the
+flat pair from that arc is ``d = L (1 − cos(θ/2)) / (2 sin(θ/2))``, which is
+``(L/2) tan(θ/4)``.  That form has no 0/0 at θ = 0.  ``d`` is in metres.
+
+* **Refine** both triangles of every edge with ``d > refine_threshold`` (while
+  below the maximum level; forced splits keep the mesh conforming).
+* **Simplify** a split (merge its 4, or 2 on the border, children) only when:
+  (a) every hinge touching its midpoint particle has ``d < coarsen_threshold``;
+  (b) the hinges are *settled*.  The paper asks for ∂C/∂x ≈ 0, but that gradient
+  has magnitude ~1/height even on a flat sheet (DESIGN.md §2).  What is small on
+  a settled hinge is the rate ``dθ/dt = ∂θ/∂x · v`` and the bend force
+  ``k_b c_e θ ∂θ/∂x``, so both are tested (``max_hinge_rate``, ``max_bend_force``);
+  (c) each child triangle has existed for at least ``min_lifetime`` seconds
+  (hysteresis against refine/simplify cycles; it never delays refinement);
+  (d) no pin or contact holds the midpoint particle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .forces import Elements, hinge_angles
+from .hierarchy import Hierarchy48, Merge
+
+__all__ = ["HingeMeasures", "hinge_measures", "curvature_estimate", "LodPolicy",
+           "LodDecision"]
+
+
+def curvature_estimate(theta: np.ndarray, height: np.ndarray) -> np.ndarray:
+    """Paper's deviation ``d = L(1 − cos(θ/2)) / (2 sin(θ/2)) = (L/2) tan(|θ|/4)`` in m.
+
+    Args:
+        theta: hinge angles, rad.
+        height: mean distance L of the two opposite vertices from the edge, m.
+    """
+    return 0.5 * height * np.tan(0.25 * np.abs(theta))
+
+
+@dataclass
+class HingeMeasures:
+    """Per-hinge quantities of the criterion, ``(h,)`` each.
+
+    Attributes:
+        deviation: d in m; rate: dθ/dt in rad/s; bend_force: largest bend force
+        on the hinge's four particles, N.
+    """
+
+    deviation: np.ndarray
+    rate: np.ndarray
+    bend_force: np.ndarray
+
+
+def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
+                   v: np.ndarray) -> HingeMeasures:
+    """Evaluate the criterion on every hinge (vectorised).
+
+    The heights come from the angle gradient: ``|∂θ/∂o_k| = 1/h_k``.
+    """
+    hv = elements.hinge_vertices
+    if len(hv) == 0:
+        empty = np.zeros(0)
+        return HingeMeasures(empty, empty, empty)
+    theta, grad = hinge_angles(x, hv, with_gradient=True)
+    grad_norm = np.linalg.norm(grad, axis=2)                  # (h, 4)
+    height = 0.5 * (1.0 / grad_norm[:, 2] + 1.0 / grad_norm[:, 3])
+    rate = np.einsum("hkd,hkd->h", grad, v[hv])
+    force = bend_stiffness * elements.hinge_weight * np.abs(theta) * grad_norm.max(axis=1)
+    return HingeMeasures(curvature_estimate(theta, height), rate, force)
+
+
+@dataclass
+class LodDecision:
+    """Pool triangle ids to refine (most curved first) and split edges to merge."""
+
+    refine: list
+    merge: list
+
+
+class LodPolicy:
+    """Decides refinements and simplifications from the current state.
+
+    Args:
+        config: :class:`cloth_lod_ros.config.LodConfig`.
+        bend_stiffness: k_b of the material, N·m (for the bend-force test).
+    """
+
+    def __init__(self, config, bend_stiffness: float):
+        self.config = config
+        self.bend_stiffness = bend_stiffness
+
+    def decide(self, hierarchy: Hierarchy48, elements: Elements, vertex_ids: np.ndarray,
+               triangle_ids: np.ndarray, x: np.ndarray, v: np.ndarray, time: float,
+               held: np.ndarray) -> LodDecision:
+        """Choose operations for the active mesh described by the compact arrays.
+
+        Args:
+            hierarchy: the mesh being adapted (read only here).
+            elements: rest data of the compact mesh.
+            vertex_ids, triangle_ids: pool ids of the compact vertices/triangles.
+            x, v: ``(n, 3)`` compact positions and velocities.
+            time: simulation time, s.
+            held: pool ids of particles held by pins or contacts.
+        """
+        cfg = self.config
+        measures = hinge_measures(elements, self.bend_stiffness, x, v)
+        hinge_tris = elements.hinge_triangles
+        # Refine: both triangles of each over-curved hinge, most curved first.
+        over = np.flatnonzero(measures.deviation > cfg.refine_threshold)
+        order = over[np.argsort(-measures.deviation[over], kind="stable")]
+        refine = []
+        if len(order):
+            candidates = triangle_ids[hinge_tris[order].ravel()]
+            levels = hierarchy.level[candidates]
+            candidates = candidates[levels < hierarchy.max_level]
+            _, first = np.unique(candidates, return_index=True)
+            refine = candidates[np.sort(first)].tolist()
+
+        # Simplify: split particles all of whose hinges are flat and settled.
+        merge = []
+        vertices, kids = hierarchy.split_vertices()
+        if len(vertices):
+            unsettled = ((measures.deviation >= cfg.coarsen_threshold)
+                         | (np.abs(measures.rate) >= cfg.max_hinge_rate)
+                         | (measures.bend_force >= cfg.max_bend_force))
+            blocked = np.zeros(len(x), dtype=bool)
+            blocked[elements.hinge_vertices[unsettled].ravel()] = True
+            young = np.where(kids >= 0, hierarchy.birth[np.maximum(kids, 0)],
+                             -np.inf).max(axis=1) > time - cfg.min_lifetime
+            ok = ~(blocked[np.searchsorted(vertex_ids, vertices)] | young
+                   | np.isin(vertices, held))
+            merge = [(int(a), int(b)) for a, b in hierarchy.vertex_edge[vertices[ok]]]
+        return LodDecision(refine=refine, merge=merge)
+
+    @staticmethod
+    def apply(hierarchy: Hierarchy48, decision: LodDecision, time: float) -> tuple[int, int]:
+        """Carry out a decision; returns ``(splits, merges)`` performed.
+
+        Refinements go first (forced splits may make a planned merge invalid,
+        which is then skipped); merges only touch all-leaf diamonds, which
+        keeps the mesh conforming.
+        """
+        splits = 0
+        for t in decision.refine:
+            splits += len(hierarchy.refine(int(t), time))
+        merges = 0
+        for edge in decision.merge:
+            parents = hierarchy.diamond.get(edge)
+            if parents is None:
+                continue
+            if hierarchy.tri_active[hierarchy.children[list(parents)]].all():
+                hierarchy.apply(Merge(edge), time)
+                merges += 1
+        return splits, merges
+
