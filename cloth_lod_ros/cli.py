@@ -63,6 +63,7 @@ def _summary(sim: ClothSim, wall: float) -> str:
         f"  solver {sim.scene.solver.method}: CG iterations mean {it.mean():.1f}, "
         f"max {it.max()}; worst residual {max(s.residual for s in st):.2e}; "
         f"{unconverged} unconverged step(s)",
+        _lod_line(sim),
         f"  final energy [J]: kinetic {last.kinetic_energy:.4g}, stretch "
         f"{last.stretch_energy:.4g}, shear {last.shear_energy:.4g}, bend "
         f"{last.bend_energy:.4g}; max strain {last.max_strain:.4f}, max speed "
@@ -74,6 +75,17 @@ def _summary(sim: ClothSim, wall: float) -> str:
 def _frame(sim: ClothSim, prefix: str = ""):
     return (sim.positions.copy(), sim.triangles.copy(), sim.triangle_levels.copy(),
             f"{prefix}t = {sim.time:.2f} s, {sim.mesh.triangle_count} triangles")
+
+
+def _lod_line(sim: ClothSim) -> str:
+    st = sim.stats
+    if sim.hierarchy is None:
+        return f"  uniform mesh at level {sim.max_level} (LOD off)"
+    tris = np.array([s.triangle_count for s in st])
+    share = 100 * sum(s.lod_ms for s in st) / max(sum(s.step_ms for s in st), 1e-12)
+    return (f"  LOD (max level {sim.max_level}): {sum(s.refines for s in st)} splits, "
+            f"{sum(s.merges for s in st)} merges; triangles mean {tris.mean():.0f}, "
+            f"max {tris.max()}, final {tris[-1]}; {share:.1f} % of step time in LOD")
 
 
 def _cmd_run(args) -> int:
@@ -121,6 +133,17 @@ def _cmd_run(args) -> int:
         frames.append(_frame(sim, f"{scene.name}, "))
         render_frames(png, frames, np.array([p.vertex for p in sim.pins], dtype=np.int64))
         print(f"  wrote {png}")
+        if sim.hierarchy is not None:
+            from .plotting import render_levels, render_lod_history
+            levels_png = png.with_name(png.stem + "_levels.png")
+            render_levels(levels_png, sim.positions, sim.triangles, sim.rest_uv,
+                          sim.triangle_levels, sim.max_level,
+                          title=f"{scene.name}: final mesh at t = {sim.time:.2f} s, "
+                                f"{sim.mesh.triangle_count} triangles")
+            history_png = png.with_name(png.stem + "_lod.png")
+            render_lod_history(history_png, sim.stats,
+                               title=f"{scene.name}: adaptive mesh over time")
+            print(f"  wrote {levels_png}\n  wrote {history_png}")
     return 0
 
 

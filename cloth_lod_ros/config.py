@@ -137,9 +137,9 @@ class LodConfig:
     enabled: bool = _spec("bool", default=False, doc="adapt the mesh at run time")
     initial_level: int = _spec("int", "", ge=0, le=12, default=0,
                                doc="uniform level the adaptive run starts from")
-    refine_threshold: float = _spec("float", "m", gt=0, default=0.002,
+    refine_threshold: float = _spec("float", "m", gt=0, default=0.001,
                                     doc="refine an edge whose deviation d exceeds this")
-    coarsen_threshold: float = _spec("float", "m", gt=0, default=0.0005,
+    coarsen_threshold: float = _spec("float", "m", gt=0, default=0.00025,
                                      doc="merge only where every d is below this")
     max_hinge_rate: float = _spec("float", "rad/s", gt=0, default=0.5,
                                   doc="merge only where every |dtheta/dt| is below this")

@@ -383,6 +383,36 @@ class ClothSim:
         self.stats.append(stats)
         return stats
 
+    def _sync_hierarchy(self) -> Hierarchy48:
+        """Write the live state back into the hierarchy (it is only read at
+        topology changes) and return it."""
+        if self.hierarchy is None:
+            raise RuntimeError("mesh operations need lod.enabled: true")
+        self.hierarchy.x[self.vertex_ids] = self.state.positions
+        self.hierarchy.v[self.vertex_ids] = self.state.velocities
+        return self.hierarchy
+
+    def apply_mesh_operations(self, ops) -> None:
+        """Apply :class:`~cloth_lod_ros.hierarchy.Split`/``Merge`` values (LOD on only).
+
+        For scripting and tests; the state is carried over as the operations
+        define (face rule on split, momentum-conserving merge).
+        """
+        h = self._sync_hierarchy()
+        for op in ops:
+            h.apply(op, self.state.time)
+        self._adopt_hierarchy()
+
+    def refine(self, triangle: int) -> list:
+        """Refine the active triangle with pool id ``triangle`` (forcing splits of
+        coarser neighbours); returns the splits made, which
+        ``apply_mesh_operations([op.inverse() for op in reversed(ops)])`` undoes."""
+        h = self._sync_hierarchy()
+        ops = h.refine(int(triangle), self.state.time)
+        if ops:
+            self._adopt_hierarchy()
+        return ops
+
     def _adapt(self) -> tuple[int, int]:
         """Evaluate the LOD criterion and refine/simplify; returns (splits, merges)."""
         h, time = self.hierarchy, self.state.time
@@ -392,9 +422,7 @@ class ClothSim:
                                           self.state.velocities, time, held_nodes)
         if not decision.refine and not decision.merge:
             return 0, 0
-        # The hierarchy's copy of the state is only current at topology changes.
-        h.x[self.vertex_ids] = self.state.positions
-        h.v[self.vertex_ids] = self.state.velocities
+        self._sync_hierarchy()
         splits, merges = LodPolicy.apply(h, decision, time)
         if splits or merges:
             self._adopt_hierarchy()

@@ -17,7 +17,8 @@ from cloth_lod_ros.sim import ClothSim, SimulationError, StepStats
 
 REPO = Path(__file__).resolve().parent.parent
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-FAST = ["--level", "2", "--duration", "0.1", "--quiet"]
+# Uniform level 2 (the scene is adaptive by default): fixed shapes to check.
+FAST = ["--level", "2", "--duration", "0.1", "--quiet", "--set", "lod.enabled=false"]
 DURATION = 0.1
 
 
@@ -113,6 +114,7 @@ def test_default_output_path(tmp_path, monkeypatch):
 def test_dt_and_set_overrides_reach_the_simulation(tmp_path):
     code = cli.main(["run", "hang_two_corners", "--level", "1", "--duration", "0.1",
                      "--dt", "0.025", "--set", "material.density=0.5", "--quiet",
+                     "--set", "lod.enabled=false",
                      "--no-png", "--out", str(tmp_path / "s.npz")])
     assert code == 0
     with np.load(tmp_path / "s.npz") as d:
@@ -251,3 +253,18 @@ def test_console_script_subprocess(tmp_path):
                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2
     assert "material.density" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_adaptive_run_writes_level_and_history_pictures(tmp_path, capsys):
+    code = cli.main(["run", "hang_two_corners", "--level", "4", "--duration", "0.4",
+                     "--quiet", "--out", str(tmp_path / "a.npz")])
+    assert code == 0
+    for name in ("a.png", "a_levels.png", "a_lod.png"):
+        assert (tmp_path / name).read_bytes()[:8] == PNG_MAGIC
+    out = capsys.readouterr().out
+    assert "LOD (max level 4)" in out and "splits" in out
+    with np.load(tmp_path / "a.npz") as d:
+        assert d["levels"].max() <= 4
+        assert d["stats_refines"].sum() > 0              # it adapted while swinging
+        np.testing.assert_array_equal(d["stats_triangles_per_level"].sum(axis=1),
+                                      d["stats_triangle_count"])

@@ -70,7 +70,7 @@ def test_momentum_is_conserved_without_pins_gravity_or_drag(method, bound):
 
 
 def test_hung_cloth_settles_with_pins_exactly_on_target():
-    cfg = load_scene("hang_two_corners", ["cloth.level=2", "simulation.duration=8.0"])
+    cfg = load_scene("hang_two_corners", ["lod.enabled=false", "cloth.level=2", "simulation.duration=8.0"])
     sim = ClothSim(cfg)
     targets = {p.name: p.anchor.copy() for p in sim.pins}
     kinetic = []
@@ -139,7 +139,7 @@ def test_stiff_material_at_large_step_stays_finite_and_bounded(level):
     appears (measured: peak 2.4x at level 2, 4.8x at level 4); it must stay
     bounded and be dissipated.
     """
-    cfg = load_scene("hang_two_corners", [f"cloth.level={level}", "simulation.time_step=0.0333333",
+    cfg = load_scene("hang_two_corners", ["lod.enabled=false", f"cloth.level={level}", "simulation.time_step=0.0333333",
                                           "material.stretch_stiffness=200000.0",
                                           "material.shear_stiffness=20000.0"])
     sim = ClothSim(cfg)
@@ -158,7 +158,7 @@ def test_stiff_material_at_large_step_stays_finite_and_bounded(level):
 
 def test_energy_never_grows_for_the_default_material():
     """With fixed pins nothing does work on the cloth: implicit Euler dissipates."""
-    sim = ClothSim(load_scene("hang_two_corners", ["cloth.level=3"]))
+    sim = ClothSim(load_scene("hang_two_corners", ["lod.enabled=false", "cloth.level=3"]))
     energies = [sum(sim.energy().values())] + [sim.step().total_energy for _ in range(120)]
     assert np.all(np.diff(energies) <= 1e-9 * abs(energies[0]))
 
@@ -192,9 +192,9 @@ def test_non_finite_state_is_refused_and_state_kept():
 
 
 def test_direct_and_pcg_agree():
-    cfg = load_scene("hang_two_corners", ["cloth.level=3", "solver.tolerance=1e-8"])
+    cfg = load_scene("hang_two_corners", ["lod.enabled=false", "cloth.level=3", "solver.tolerance=1e-8"])
     a = ClothSim(cfg)
-    b = ClothSim(load_scene("hang_two_corners", ["cloth.level=3", "solver.method=direct"]))
+    b = ClothSim(load_scene("hang_two_corners", ["lod.enabled=false", "cloth.level=3", "solver.method=direct"]))
     for _ in range(30):
         a.step()
         b.step()
