@@ -2,6 +2,7 @@
 
     cloth-lod run SCENE [--duration S] [--dt H] [--level L] [--set key=value ...]
                         [--out state.npz] [--png picture.png] [--frames N] [--quiet]
+    cloth-lod compare SCENE [--level L] [--duration S] [--set key=value ...] [--json F]
     cloth-lod scenes
 
 ``run`` simulates headless and writes the final state (x, v, uv, mass,
@@ -147,6 +148,19 @@ def _cmd_run(args) -> int:
     return 0
 
 
+def _cmd_compare(args) -> int:
+    import json
+    from .benchmark import compare_adaptive_uniform, format_comparison
+    result = compare_adaptive_uniform(args.scene, level=args.level, duration=args.duration,
+                                      overrides=args.set, grid=args.grid)
+    print(format_comparison(result))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(result, indent=2))
+        print(f"  wrote {args.json}")
+    return 0
+
+
 def _cmd_scenes(args) -> int:
     for name in builtin_scene_names():
         scene = load_scene(name)
@@ -171,6 +185,17 @@ def build_parser() -> argparse.ArgumentParser:
                      help="panels in the picture, evenly spaced in time (default 1: final state)")
     run.add_argument("--quiet", action="store_true", help="no progress lines")
     run.set_defaults(func=_cmd_run)
+    compare = sub.add_parser(
+        "compare", help="adaptive vs uniform at the same level: time per step and distance")
+    compare.add_argument("scene", help="built-in scene name or path to a scene YAML file")
+    compare.add_argument("--level", type=int, help="maximum (adaptive) and uniform level")
+    compare.add_argument("--duration", type=float, help="simulated seconds")
+    compare.add_argument("--set", action="append", metavar="KEY=VALUE",
+                         help="override a scene field in both runs (repeatable)")
+    compare.add_argument("--grid", type=int, default=21,
+                         help="sample grid points per side (default 21)")
+    compare.add_argument("--json", help="also write the result as JSON to this path")
+    compare.set_defaults(func=_cmd_compare)
     scenes = sub.add_parser("scenes", help="list the built-in scenes")
     scenes.set_defaults(func=_cmd_scenes)
     return parser

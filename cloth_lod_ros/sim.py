@@ -343,9 +343,10 @@ class ClothSim:
         h = self.time_step
         start = _time.perf_counter()
         refines = merges = 0
+        lod_ms = 0.0
         if self.hierarchy is not None and len(self.stats) % self.scene.lod.check_interval == 0:
             refines, merges = self._adapt()
-        lod_ms = 1e3 * (_time.perf_counter() - start)
+            lod_ms = 1e3 * (_time.perf_counter() - start)
         held = self._held(self.state.time + h)
         new_state, report = self.solver.step(self.elements, self.masses, self.state,
                                              held, h)

@@ -268,3 +268,22 @@ def test_adaptive_run_writes_level_and_history_pictures(tmp_path, capsys):
         assert d["stats_refines"].sum() > 0              # it adapted while swinging
         np.testing.assert_array_equal(d["stats_triangles_per_level"].sum(axis=1),
                                       d["stats_triangle_count"])
+
+
+def test_compare_reports_speed_and_error(tmp_path, capsys):
+    import json
+    out = tmp_path / "cmp.json"
+    code = cli.main(["compare", "hang_two_corners", "--level", "3", "--duration", "0.5",
+                     "--grid", "6", "--json", str(out)])
+    assert code == 0
+    result = json.loads(out.read_text())
+    assert result["uniform"]["lod_share"] == 0.0 and result["uniform"]["splits"] == 0
+    assert result["adaptive"]["splits"] > 0
+    assert result["uniform"]["max_triangles"] == 32 * 2**3
+    assert result["adaptive"]["max_triangles"] <= 32 * 2**3
+    assert [round(e["time"], 6) for e in result["errors"]] == [0.116667, 0.25, 0.5]
+    for e in result["errors"]:
+        assert 0.0 <= e["rms_m"] <= e["max_m"] < 0.1
+        assert e["rms_fraction"] == pytest.approx(e["rms_m"])       # 1 m cloth
+    assert result["speedup"] > 0
+    assert "speed-up" in capsys.readouterr().out
