@@ -345,7 +345,7 @@ class ClothSim:
         refines = merges = 0
         lod_ms = 0.0
         if self.hierarchy is not None and len(self.stats) % self.scene.lod.check_interval == 0:
-            refines, merges = self._adapt()
+            refines, merges = self.adapt()
             lod_ms = 1e3 * (_time.perf_counter() - start)
         held = self._held(self.state.time + h)
         new_state, report = self.solver.step(self.elements, self.masses, self.state,
@@ -414,8 +414,12 @@ class ClothSim:
             self._adopt_hierarchy()
         return ops
 
-    def _adapt(self) -> tuple[int, int]:
-        """Evaluate the LOD criterion and refine/simplify; returns (splits, merges)."""
+    def adapt(self) -> tuple[int, int]:
+        """Evaluate the LOD criterion on the current state and refine/simplify now.
+
+        ``step()`` calls this every ``lod.check_interval`` steps.  Returns
+        ``(splits, merges)`` performed.
+        """
         h, time = self.hierarchy, self.state.time
         held_nodes = np.array([p.node for p in self.pins if p.active(time)], dtype=np.int64)
         decision = self.lod_policy.decide(h, self.elements, self.vertex_ids,
