@@ -130,6 +130,7 @@ class HierarchyMachine(RuleBasedStateMachine):
         self.p0 = momentum(self.h)
         self.undo_stack: list[tuple[list[Split], dict]] = []
         self.deepest = 0
+        self.clock = 0.0
 
     # -- rules --------------------------------------------------------------
     @rule(data=st.data())
@@ -151,7 +152,9 @@ class HierarchyMachine(RuleBasedStateMachine):
         level, edge = int(h.level[t]), h.hypotenuse(t)
         forced = level < h.max_level and hyp_is_leg_of_neighbour(h, t)
         version = h.version
-        ops = h.refine(t)
+        self.clock += 1.0
+        birth = h.birth[before["tids"]].copy()
+        ops = h.refine(t, time=self.clock)
         if level >= h.max_level:
             assert ops == []
             assert h.version == version
@@ -180,6 +183,13 @@ class HierarchyMachine(RuleBasedStateMachine):
             assert np.array_equal(h.x[m], 0.5 * (h.x[a] + h.x[b]))
             assert np.array_equal(h.v[m], 0.5 * (h.v[a] + h.v[b]))
         assert len(set(new)) == len(ops)
+        # New triangles are born now; surviving ones keep their birth time.
+        tids = h.active_triangles()
+        old = np.isin(before["tids"], tids)
+        assert np.array_equal(h.birth[before["tids"][old]], birth[old])
+        fresh = tids[~np.isin(tids, before["tids"])]
+        assert len(tids) == len(before["tids"]) + sum(len(h.diamond[op.edge]) for op in ops)
+        assert np.all(h.birth[fresh] == self.clock)
         assert set(h.active_vertices().tolist()) == set(vids.tolist()) | set(new)
         self.undo_stack.append((ops, before))
 
@@ -222,7 +232,11 @@ class HierarchyMachine(RuleBasedStateMachine):
         vids = before["vids"]
         mass_m = h.masses[m]
         v_m, v_a, v_b = h.v[m].copy(), h.v[a].copy(), h.v[b].copy()
-        h.apply(Merge(edge))
+        self.clock += 1.0
+        parents = list(h.diamond[edge])
+        h.apply(Merge(edge), time=self.clock)
+        assert np.all(h.tri_active[parents])
+        assert np.all(h.birth[parents] == self.clock)      # re-activated now
         self.undo_stack.clear()                  # earlier refines may be gone
         assert edge not in h.midpoint and edge not in h.diamond
         assert not h.vertex_active[m] and h.mass_units[m] == 0
@@ -238,6 +252,8 @@ class HierarchyMachine(RuleBasedStateMachine):
         np.testing.assert_allclose(da, db, rtol=0, atol=1e-14 * scale)
         expected = mass_m * (v_m - 0.5 * (v_a + v_b)) / (h.masses[a] + h.masses[b])
         np.testing.assert_allclose(da, expected, rtol=1e-10, atol=1e-14 * scale)
+        if perturb:
+            assert np.any(da != 0)
         if not perturb and np.array_equal(v_m, 0.5 * (v_a + v_b)):
             assert np.array_equal(da, np.zeros(3)) and np.array_equal(db, np.zeros(3))
         # The edge ends took the removed particle's mass in equal halves.
@@ -334,9 +350,14 @@ def test_refine_then_undo_is_exact_after_random_prefix(base, seed, data):
     ops = h.refine(t)
     if h.level[t] < h.max_level:
         assert ops
+    ends = h.vertex_end, h.tri_end
     for op in reversed(ops):
         h.apply(op.inverse())
     assert_same(before, snapshot(h))
+    h.check()
+    # Redoing it recycles the freed pool slots instead of growing the pool.
+    assert h.refine(t) == ops
+    assert (h.vertex_end, h.tri_end) == ends
     h.check()
 
 
