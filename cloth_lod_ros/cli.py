@@ -132,7 +132,8 @@ def _cmd_run(args) -> int:
     if not args.no_png:
         from .plotting import render_frames
         frames.append(_frame(sim, f"{scene.name}, "))
-        render_frames(png, frames, np.array([p.vertex for p in sim.pins], dtype=np.int64))
+        render_frames(png, frames, np.array([p.vertex for p in sim.pins], dtype=np.int64),
+                      max_level=sim.max_level if sim.hierarchy is not None else None)
         print(f"  wrote {png}")
         if sim.hierarchy is not None:
             from .plotting import render_levels, render_lod_history

@@ -9,7 +9,7 @@ import numpy as np
 __all__ = ["render_cloth", "render_frames", "render_levels", "render_lod_history"]
 
 
-def _face_colours(positions, triangles, levels):
+def _face_colours(positions, triangles, levels, max_level=None):
     import matplotlib.pyplot as plt
     corners = positions[triangles]
     normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
@@ -17,7 +17,11 @@ def _face_colours(positions, triangles, levels):
     light = np.array([0.3, -0.5, 0.8])
     light /= np.linalg.norm(light)
     shade = 0.35 + 0.65 * np.abs(normals @ light)
-    if levels is not None and len(np.unique(levels)) > 1:
+    if levels is not None and max_level is not None:
+        # Absolute scale so that frames and pictures compare (as render_levels).
+        cmap = plt.get_cmap("viridis", max_level + 1)
+        base = cmap(levels / max(max_level, 1))[:, :3]
+    elif levels is not None and len(np.unique(levels)) > 1:
         cmap = plt.get_cmap("viridis")
         span = max(int(levels.max() - levels.min()), 1)
         base = cmap((levels - levels.min()) / span)[:, :3]
@@ -26,9 +30,9 @@ def _face_colours(positions, triangles, levels):
     return corners, np.clip(base * shade[:, None], 0, 1)
 
 
-def _draw(ax, positions, triangles, levels, pinned, bounds, title):
+def _draw(ax, positions, triangles, levels, pinned, bounds, title, max_level=None):
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-    corners, colours = _face_colours(positions, triangles, levels)
+    corners, colours = _face_colours(positions, triangles, levels, max_level)
     ax.add_collection3d(Poly3DCollection(corners, facecolors=colours,
                                          edgecolors=(0, 0, 0, 0.25), linewidths=0.3))
     if pinned is not None and len(pinned):
@@ -66,13 +70,16 @@ def render_cloth(path, positions: np.ndarray, triangles: np.ndarray,
     render_frames(path, [(positions, triangles, levels, title)], pinned)
 
 
-def render_frames(path, frames, pinned: np.ndarray | None = None) -> None:
+def render_frames(path, frames, pinned: np.ndarray | None = None,
+                  max_level: int | None = None) -> None:
     """Write a PNG with one 3-D panel per frame, on common axes.
 
     Args:
         frames: list of ``(positions (n,3), triangles (t,3), levels (t,) or None,
             title)``.
         pinned: indices of held particles (same in every frame), or None.
+        max_level: colour faces by level on a fixed 0..max_level scale (adaptive
+            runs); None shades a single colour (or a relative level tint).
     """
     import matplotlib
     matplotlib.use("Agg")
@@ -84,7 +91,7 @@ def render_frames(path, frames, pinned: np.ndarray | None = None) -> None:
     fig = plt.figure(figsize=(5.5 * len(frames), 5.5), dpi=100)
     for k, (positions, triangles, levels, title) in enumerate(frames):
         ax = fig.add_subplot(1, len(frames), k + 1, projection="3d")
-        _draw(ax, positions, triangles, levels, pinned, bounds, title)
+        _draw(ax, positions, triangles, levels, pinned, bounds, title, max_level)
     fig.subplots_adjust(left=0.02, right=0.95, bottom=0.05, top=0.98, wspace=0.1)
     fig.savefig(path)
     plt.close(fig)
