@@ -23,6 +23,7 @@ import yaml
 
 __all__ = [
     "SceneError", "ClothConfig", "MaterialConfig", "PinConfig", "LodConfig",
+    "ObstacleConfig", "ContactConfig", "GraspConfig",
     "SimulationConfig", "SolverConfig", "SceneConfig",
     "load_scene", "scene_from_dict", "scene_to_dict", "apply_overrides",
     "find_scene_file", "builtin_scene_names", "scenes_directory",
@@ -113,6 +114,56 @@ class PinConfig:
 
 
 @dataclass(frozen=True)
+class ObstacleConfig:
+    """An analytic rigid obstacle (only the fields of its ``type`` are used)."""
+
+    type: str = _spec("str", choices=("plane", "sphere", "cylinder", "disc", "box"),
+                      doc="shape")
+    name: str = _spec("str", default="", doc="label (defaults to <type><index>)")
+    centre: tuple = _spec("vec3", "m", default=(0.0, 0.0, 0.0),
+                          doc="plane: a point on it; others: the centre")
+    normal: tuple = _spec("unit3", "", default=(0.0, 0.0, 1.0), doc="plane: outward normal")
+    radius: float = _spec("float", "m", gt=0, default=0.5, doc="sphere, cylinder, disc")
+    axis: tuple = _spec("unit3", "", default=(0.0, 0.0, 1.0), doc="cylinder/disc axis")
+    half_height: float = _spec("float", "m", gt=0, default=0.01,
+                               doc="cylinder/disc: half its length along the axis")
+    half_extents: tuple = _spec("vec3", "m", gt=0, default=(0.5, 0.5, 0.5), doc="box")
+    orientation: tuple = _spec("quat", "", default=(0.0, 0.0, 0.0, 1.0),
+                               doc="box: unit quaternion [x, y, z, w]")
+    friction: float = _spec("float", "", ge=0, default=0.3, doc="Coulomb coefficient")
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    thickness: float = _spec("float", "m", gt=0, default=0.004,
+                             doc="particles keep this distance from obstacle surfaces")
+    max_correction_speed: float = _spec("float", "m/s", gt=0, default=0.5,
+                                        doc="fastest push out of a penetration")
+
+
+@dataclass(frozen=True)
+class GraspConfig:
+    """A gripper holding the cloth at a material point (scripted or driven at run time)."""
+
+    name: str = _spec("str", doc="label (topics use it)")
+    uv: tuple = _spec("vec2", "m", doc="material point held")
+    width: float = _spec("float", "m", ge=0, default=0.0,
+                         doc="0: one particle; > 0: all particles within width/2 in (u, v)")
+    tolerance: float = _spec("float", "m", gt=0, default=0.005,
+                             doc="with LOD on, refine until a particle is this close to uv")
+    max_speed: float = _spec("float", "m/s", gt=0, default=2.0,
+                             doc="fastest the held point follows its target")
+    max_angular_speed: float = _spec("float", "rad/s", gt=0, default=6.0,
+                                     doc="fastest the grip turns towards its target")
+    close_time: float | None = _spec("float?", "s", ge=0, default=None,
+                                     doc="scripted closing time (None: closed at run time)")
+    open_time: float | None = _spec("float?", "s", ge=0, default=None,
+                                    doc="scripted opening time")
+    waypoints: tuple = _spec("waypoints", "s, m", default=(),
+                             doc="[[t, x, y, z], ...] scripted target path")
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     time_step: float = _spec("float", "s", gt=0, le=1.0, doc="implicit Euler step h")
     duration: float = _spec("float", "s", ge=0, doc="simulated time of a run")
@@ -149,6 +200,11 @@ class LodConfig:
                                 doc="a triangle must exist this long before a merge removes it")
     check_interval: int = _spec("int", "steps", ge=1, default=1,
                                 doc="evaluate the criterion every this many steps")
+    detail_level: int = _spec("int", "", ge=0, le=12, default=0,
+                              doc="refine to at least this level near closed grasps and "
+                                  "along contact borders (0: off)")
+    detail_radius: float = _spec("float", "m", gt=0, default=0.08,
+                                 doc="(u, v) distance from a grasp point that gets detail")
 
 
 @dataclass(frozen=True)
@@ -161,10 +217,14 @@ class SceneConfig:
     pins: tuple = _spec("pins", default=())
     solver: SolverConfig = _spec("section", default_factory=SolverConfig)
     lod: LodConfig = _spec("section", default_factory=LodConfig)
+    obstacles: tuple = _spec("obstacles", default=())
+    contact: ContactConfig = _spec("section", default_factory=ContactConfig)
+    grasps: tuple = _spec("grasps", default=())
 
 
 _SECTION_TYPES = {"cloth": ClothConfig, "simulation": SimulationConfig,
-                  "material": MaterialConfig, "solver": SolverConfig, "lod": LodConfig}
+                  "material": MaterialConfig, "solver": SolverConfig, "lod": LodConfig,
+                  "contact": ContactConfig}
 
 
 def _number(value: Any, path: str, integer: bool = False) -> float:
@@ -233,6 +293,23 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
         if meta["choices"] and value not in meta["choices"]:
             raise SceneError(f"field '{path}' must be one of {list(meta['choices'])}, "
                              f"got {value!r}")
+    elif kind == "quat":
+        vec = _vector(value, path, 4)
+        norm = math.sqrt(sum(c * c for c in vec))
+        if norm == 0.0:
+            raise SceneError(f"field '{path}' must be a non-zero quaternion [x, y, z, w]")
+        out = tuple(c / norm for c in vec) if abs(norm - 1.0) > 1e-12 else vec
+    elif kind in ("obstacles", "grasps"):
+        if not isinstance(value, (list, tuple)):
+            raise SceneError(f"field '{path}' must be a list")
+        cls = ObstacleConfig if kind == "obstacles" else GraspConfig
+        out = tuple(_build(cls, p, f"{path}[{i}]") for i, p in enumerate(value))
+        if kind == "obstacles":
+            out = tuple(o if o.name else dataclasses.replace(o, name=f"{o.type}{i}")
+                        for i, o in enumerate(out))
+        names = [o.name for o in out]
+        if len(set(names)) != len(names):
+            raise SceneError(f"field '{path}' has duplicate names {names}")
     elif kind == "waypoints":
         if not isinstance(value, (list, tuple)):
             raise SceneError(f"field '{path}' must be a list of [t, x, y, z]")
@@ -298,6 +375,17 @@ def scene_from_dict(data: Any) -> SceneConfig:
     if lod.enabled and lod.initial_level > cloth.level:
         raise SceneError(f"field 'lod.initial_level' ({lod.initial_level}) must not exceed "
                          f"'cloth.level' ({cloth.level}), the maximum level with LOD on")
+    for i, grasp in enumerate(scene.grasps):
+        u, v = grasp.uv
+        if not (0.0 <= u <= cloth.width and 0.0 <= v <= cloth.height):
+            raise SceneError(f"field 'grasps[{i}].uv' = {grasp.uv} lies outside the "
+                             f"{cloth.width} x {cloth.height} m cloth")
+        if (grasp.close_time is not None and grasp.open_time is not None
+                and grasp.open_time <= grasp.close_time):
+            raise SceneError(f"field 'grasps[{i}].open_time' must come after close_time")
+        if not grasp.name.replace("_", "").isalnum():
+            raise SceneError(f"field 'grasps[{i}].name' = {grasp.name!r} must be letters, "
+                             "digits and underscores (it names ROS topics)")
     for i, pin in enumerate(scene.pins):
         u, v = pin.uv
         if not (0.0 <= u <= cloth.width and 0.0 <= v <= cloth.height):

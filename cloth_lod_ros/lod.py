@@ -99,7 +99,8 @@ class LodPolicy:
 
     def decide(self, hierarchy: Hierarchy48, elements: Elements, vertex_ids: np.ndarray,
                triangle_ids: np.ndarray, x: np.ndarray, v: np.ndarray, time: float,
-               held: np.ndarray) -> LodDecision:
+               held: np.ndarray, detail_points: np.ndarray | None = None,
+               in_contact: np.ndarray | None = None, supported=None) -> LodDecision:
         """Choose operations for the active mesh described by the compact arrays.
 
         Args:
@@ -108,7 +109,14 @@ class LodPolicy:
             vertex_ids, triangle_ids: pool ids of the compact vertices/triangles.
             x, v: ``(n, 3)`` compact positions and velocities.
             time: simulation time, s.
-            held: pool ids of particles held by pins or contacts.
+            held: pool ids of particles held by pins or grasps (never merged).
+            detail_points: ``(k, 2)`` (u, v) points (closed grasps) around which
+                the mesh is kept at ``detail_level`` within ``detail_radius``.
+            in_contact: ``(n,)`` compact particles touching an obstacle; triangles
+                on the border of the contact region get ``detail_level``.
+            supported: callable(pool vertex ids) -> bool mask of split particles
+                an obstacle is holding up (merging them would sink the coarse
+                edge into it); those are not merged.
         """
         cfg = self.config
         measures = hinge_measures(elements, self.bend_stiffness, x, v)
@@ -117,8 +125,10 @@ class LodPolicy:
         over = np.flatnonzero(measures.deviation > cfg.refine_threshold)
         order = over[np.argsort(-measures.deviation[over], kind="stable")]
         refine = []
-        if len(order):
-            candidates = triangle_ids[hinge_tris[order].ravel()]
+        detail = self._detail_triangles(elements, hierarchy, triangle_ids, detail_points,
+                                        in_contact)
+        if len(order) or len(detail):
+            candidates = np.concatenate([triangle_ids[hinge_tris[order].ravel()], detail])
             levels = hierarchy.level[candidates]
             candidates = candidates[levels < hierarchy.max_level]
             _, first = np.unique(candidates, return_index=True)
@@ -137,8 +147,32 @@ class LodPolicy:
                              -np.inf).max(axis=1) > time - cfg.min_lifetime
             ok = ~(blocked[np.searchsorted(vertex_ids, vertices)] | young
                    | np.isin(vertices, held))
+            if cfg.detail_level > 0 and detail_points is not None and len(detail_points):
+                # Keep grasp neighbourhoods at detail_level: a merge there would
+                # leave parents one level above their children's.
+                near = _near(hierarchy.uv[vertices], detail_points, cfg.detail_radius)
+                child_level = hierarchy.level[np.maximum(kids[:, 0], 0)]
+                ok &= ~(near & (child_level - 1 < cfg.detail_level))
+            if supported is not None and ok.any():
+                ok[ok] &= ~supported(vertices[ok])
             merge = [(int(a), int(b)) for a, b in hierarchy.vertex_edge[vertices[ok]]]
         return LodDecision(refine=refine, merge=merge)
+
+    def _detail_triangles(self, elements, hierarchy, triangle_ids, detail_points,
+                          in_contact) -> np.ndarray:
+        """Pool ids of triangles below ``detail_level`` that need it."""
+        cfg = self.config
+        if cfg.detail_level <= 0:
+            return np.zeros(0, dtype=np.int64)
+        levels = hierarchy.level[triangle_ids]
+        want = np.zeros(len(triangle_ids), dtype=bool)
+        if detail_points is not None and len(detail_points):
+            centroid = hierarchy.uv[hierarchy.tri[triangle_ids]].mean(axis=1)
+            want |= _near(centroid, detail_points, cfg.detail_radius)
+        if in_contact is not None and in_contact.any():
+            touching = in_contact[elements.triangles].sum(axis=1)
+            want |= (touching > 0) & (touching < 3)       # border of the contact patch
+        return triangle_ids[want & (levels < cfg.detail_level)]
 
     @staticmethod
     def apply(hierarchy: Hierarchy48, decision: LodDecision, time: float) -> tuple[int, int]:
@@ -161,3 +195,9 @@ class LodPolicy:
                 merges += 1
         return splits, merges
 
+
+
+def _near(points: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
+    """Whether each ``(m, 2)`` point is within ``radius`` of any of ``centres`` ``(k, 2)``."""
+    d2 = ((points[:, None, :] - centres[None, :, :]) ** 2).sum(axis=-1)
+    return (d2 <= radius * radius).any(axis=1)

@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import SceneConfig, load_scene
+from .contact import find_contacts, make_obstacle
+from .grasps import Grasp
 from .forces import Elements, elastic_energies, evaluate, precompute
 from .hierarchy import Hierarchy48
 from .lod import LodPolicy
@@ -107,6 +109,7 @@ class StepStats:
     vertex_count: int
     triangle_count: int
     pinned_count: int
+    contact_count: int
     refines: int
     merges: int
     triangles_per_level: tuple
@@ -145,6 +148,8 @@ class SolveReport:
     force_ms: float
     assembly_ms: float
     solve_ms: float
+    contacts: int = 0
+    released: int = 0
 
 
 class ImplicitEulerSolver:
@@ -170,7 +175,8 @@ class ImplicitEulerSolver:
                                           [elements.triangles, elements.hinge_vertices])
 
     def step(self, elements: Elements, masses: np.ndarray, state: ClothState,
-             constraints_targets: tuple[np.ndarray, np.ndarray], h: float):
+             constraints_targets: tuple[np.ndarray, np.ndarray], h: float,
+             contacts=None, max_correction_speed: float = 0.5):
         """Advance ``state`` by ``h`` seconds.
 
         Args:
@@ -180,6 +186,11 @@ class ImplicitEulerSolver:
             constraints_targets: ``(indices (k,), targets (k, 3))``: particles
                 that must be exactly at ``targets`` (m) at the end of the step.
             h: time step, s.
+            contacts: a :class:`~cloth_lod_ros.contact.ContactSet` or None.  Each
+                contact forbids motion into the obstacle (normal velocity
+                prescribed to push out of the offset surface at most
+                ``max_correction_speed`` m/s); contacts whose force would pull
+                are released and the system solved again; friction follows.
 
         Returns:
             ``(new_state, SolveReport)``.
@@ -203,27 +214,65 @@ class ImplicitEulerSolver:
         held, targets = constraints_targets
         # Velocity that lands a held particle on its target: x + h v_new = target.
         target_velocity = (targets - x[held]) / h
-        constraints = Constraints(
-            indices=held, projectors=np.zeros((len(held), 3, 3)),
-            prescribed=target_velocity - v[held])
-        if self.config.method == "direct":
-            result = solve_projected_direct(matrix, rhs, constraints)
+        pinned = Constraints(indices=held, projectors=np.zeros((len(held), 3, 3)),
+                             prescribed=target_velocity - v[held])
+        released = 0
+        if contacts is not None and len(contacts):
+            result, contacts, impulse, released = self._solve_with_contacts(
+                matrix, rhs, pinned, contacts, v, h, max_correction_speed)
         else:
-            result = filtered_pcg(matrix, rhs, constraints,
-                                  self._pattern.diagonal_blocks(matrix),
-                                  guess=self._previous_dv,
-                                  tolerance=self.config.tolerance,
-                                  max_iterations=self.config.max_iterations)
+            result = self._solve(matrix, rhs, pinned)
+            impulse = None
         t3 = _time.perf_counter()
         new_v = v + result.dv
+        if impulse is not None:
+            from .contact import apply_friction
+            new_v = apply_friction(new_v, contacts, impulse / masses[contacts.indices])
         new_x = x + h * new_v
         # Held particles: exactly on target (the velocity above agrees to rounding).
         new_x[held] = targets
         new_v[held] = target_velocity
         self._previous_dv = result.dv
         report = SolveReport(result.iterations, result.residual, result.converged,
-                             1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2))
+                             1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2),
+                             len(contacts) if contacts is not None else 0, released)
         return ClothState(new_x, new_v, state.time + h), report
+
+    def _solve(self, matrix, rhs, constraints):
+        if self.config.method == "direct":
+            return solve_projected_direct(matrix, rhs, constraints)
+        return filtered_pcg(matrix, rhs, constraints, self._pattern.diagonal_blocks(matrix),
+                            guess=self._previous_dv, tolerance=self.config.tolerance,
+                            max_iterations=self.config.max_iterations)
+
+    def _solve_with_contacts(self, matrix, rhs, pinned, contacts, v, h, max_speed):
+        """Solve with pins plus one-sided contact constraints (BW §5.3, §6)."""
+        released = 0
+        iterations = 0
+        for attempt in range(2):
+            normals = contacts.normals
+            # Normal velocity at the end of the step: out of the offset surface,
+            # at most max_speed; never into the obstacle.
+            target_vn = np.clip(-contacts.distance / h, 0.0, max_speed)
+            current_vn = np.einsum("kd,kd->k", v[contacts.indices], normals)
+            constraints = Constraints(
+                indices=np.concatenate([pinned.indices, contacts.indices]),
+                projectors=np.concatenate([pinned.projectors,
+                                           np.eye(3) - normals[:, :, None] * normals[:, None, :]]),
+                prescribed=np.concatenate([pinned.prescribed,
+                                           (target_vn - current_vn)[:, None] * normals]))
+            result = self._solve(matrix, rhs, constraints)
+            iterations += result.iterations
+            # Constraint impulse along n: h f_n = n · (A Δv − b) (N·s, > 0 pushes out).
+            reaction = (matrix @ result.dv.ravel()).reshape(-1, 3) - rhs
+            impulse = np.einsum("kd,kd->k", reaction[contacts.indices], normals)
+            pulling = impulse < 0.0
+            if attempt == 1 or not pulling.any():
+                break
+            released += int(pulling.sum())
+            contacts = contacts.subset(~pulling)
+        result.iterations = iterations
+        return result, contacts, np.maximum(impulse, 0.0), released
 
 
 class ClothSim:
@@ -268,6 +317,13 @@ class ClothSim:
             positions = origin + self.mesh.uv @ axes
             self.state = ClothState(positions, np.zeros_like(positions), 0.0)
         self.pins = [self._make_pin(p) for p in scene.pins]
+        # Inputs beyond pins: obstacles (contact) and grasps.  A scene without
+        # obstacles never evaluates contact code.
+        self.obstacles = [make_obstacle(o) for o in scene.obstacles]
+        self.grasps = [Grasp.from_config(g) for g in scene.grasps]
+        self._scripted_closed = {g.name: False for g in self.grasps}
+        self.contacts = None
+        self._contacts_version = -1
 
     def _adopt_hierarchy(self) -> None:
         """Refresh the compact arrays after the hierarchy's topology changed."""
@@ -326,11 +382,91 @@ class ClothSim:
         self.pin(name).release_time = self.state.time
 
     def _held(self, time: float) -> tuple[np.ndarray, np.ndarray]:
-        active = [p for p in self.pins if p.active(time)]
-        if not active:
-            return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-        return (np.array([p.vertex for p in active], dtype=np.int64),
-                np.array([p.target(time) for p in active], dtype=float))
+        """Compact indices and end-of-step targets of every held particle."""
+        indices = [np.array([p.vertex for p in self.pins if p.active(time)], dtype=np.int64)]
+        targets = [np.array([p.target(time) for p in self.pins if p.active(time)],
+                            dtype=float).reshape(-1, 3)]
+        for g in self.grasps:
+            if g.closed:
+                indices.append(np.searchsorted(self.vertex_ids, g.nodes))
+                targets.append(g.held_targets())
+        return np.concatenate(indices), np.concatenate(targets)
+
+    def _held_nodes(self) -> np.ndarray:
+        time = self.state.time
+        nodes = [p.node for p in self.pins if p.active(time)]
+        nodes += [int(n) for g in self.grasps if g.closed for n in g.nodes]
+        return np.array(nodes, dtype=np.int64)
+
+    # -- grasps -------------------------------------------------------------
+    def grasp(self, name: str) -> Grasp:
+        for g in self.grasps:
+            if g.name == name:
+                return g
+        raise KeyError(f"no grasp named {name!r}; grasps: {[g.name for g in self.grasps]}")
+
+    def close_grasp(self, name: str) -> None:
+        """Close grasp ``name`` on the cloth at its material point.
+
+        With LOD on, the mesh is refined until a particle lies within the
+        grasp's ``tolerance`` of its (u, v) (or the maximum level is reached,
+        then the nearest particle is used and a warning logged).  With a
+        ``width``, every particle within ``width/2`` in (u, v) is held.
+        """
+        g = self.grasp(name)
+        if g.closed:
+            return
+        node, _ = self._particle_at(g.uv, g.tolerance, name)
+        nodes = np.array([node], dtype=np.int64)
+        if g.width > 0:
+            near = np.linalg.norm(self.rest_uv - g.uv, axis=1) <= 0.5 * g.width + 1e-12
+            nodes = np.union1d(nodes, self.vertex_ids[near])
+        compact = np.searchsorted(self.vertex_ids, nodes)
+        grip = self.positions[np.searchsorted(self.vertex_ids, node)]
+        g.attach(nodes, self.positions[compact].copy(), grip)
+
+    def open_grasp(self, name: str) -> None:
+        """Release grasp ``name`` (the cloth falls free of it)."""
+        self.grasp(name).release()
+
+    def set_grasp_target(self, name: str, position, orientation=None) -> None:
+        """Command grasp ``name`` to a pose: position (m), quaternion [x, y, z, w].
+
+        The held particles follow at the grasp's speed limits.
+
+        Raises:
+            KeyError: unknown grasp; ValueError: non-finite or malformed pose.
+        """
+        self.grasp(name).set_target(position, orientation)
+
+    def _particle_at(self, uv, tolerance: float, label: str) -> tuple[int, float]:
+        """Permanent id of a particle at material point ``uv`` (refining if LOD is on)."""
+        uv = np.asarray(uv, dtype=float)
+        for _ in range(4 * (self.max_level + 2)):
+            dist = np.linalg.norm(self.rest_uv - uv, axis=1)
+            nearest = int(dist.argmin())
+            if dist[nearest] <= tolerance or self.hierarchy is None:
+                break
+            if self._locator is None:
+                self._locator = PointLocator(self.mesh.uv, self.mesh.triangles,
+                                             self.mesh.width, self.mesh.height)
+            tri, _ = self._locator.locate(uv[None, :])
+            pool_tri = int(self.triangle_ids[tri[0]])
+            if not self.refine(pool_tri):
+                break                              # at the maximum level
+        if dist[nearest] > tolerance:
+            log.warning("%s: no particle within %.3g m of uv=%s; using the nearest, "
+                        "%.3g m away", label, tolerance, uv.tolist(), dist[nearest])
+        return int(self.vertex_ids[nearest]), float(dist[nearest])
+
+    def _run_grasp_script(self, time: float) -> None:
+        for g in self.grasps:
+            if g.close_time is None:
+                continue
+            want = g.close_time <= time and (g.open_time is None or time < g.open_time)
+            if want != self._scripted_closed[g.name]:
+                self._scripted_closed[g.name] = want
+                (self.close_grasp if want else self.open_grasp)(g.name)
 
     # -- stepping -----------------------------------------------------------
     def step(self) -> StepStats:
@@ -342,14 +478,27 @@ class ClothSim:
         """
         h = self.time_step
         start = _time.perf_counter()
+        next_time = self.state.time + h
+        if self.grasps:
+            self._run_grasp_script(next_time)
         refines = merges = 0
         lod_ms = 0.0
         if self.hierarchy is not None and len(self.stats) % self.scene.lod.check_interval == 0:
             refines, merges = self.adapt()
             lod_ms = 1e3 * (_time.perf_counter() - start)
-        held = self._held(self.state.time + h)
-        new_state, report = self.solver.step(self.elements, self.masses, self.state,
-                                             held, h)
+        for g in self.grasps:
+            if g.closed:
+                g.advance(next_time, h)
+        held = self._held(next_time)
+        contacts = None
+        if self.obstacles:
+            contacts = find_contacts(self.obstacles, self.state.positions,
+                                     self.scene.contact.thickness, exclude=held[0])
+        self.contacts = contacts
+        self._contacts_version = self.hierarchy.version if self.hierarchy is not None else 0
+        new_state, report = self.solver.step(
+            self.elements, self.masses, self.state, held, h, contacts,
+            self.scene.contact.max_correction_speed)
         if not (np.isfinite(report.residual)
                 and np.all(np.isfinite(new_state.positions))
                 and np.all(np.isfinite(new_state.velocities))):
@@ -369,7 +518,8 @@ class ClothSim:
         stats = StepStats(
             step_index=len(self.stats), time=new_state.time,
             vertex_count=self.mesh.vertex_count, triangle_count=self.mesh.triangle_count,
-            pinned_count=len(held[0]), refines=refines, merges=merges,
+            pinned_count=len(held[0]), contact_count=report.contacts,
+            refines=refines, merges=merges,
             triangles_per_level=tuple(int(c) for c in per_level),
             cg_iterations=report.iterations,
             residual=report.residual, converged=report.converged,
@@ -392,6 +542,15 @@ class ClothSim:
         self.hierarchy.x[self.vertex_ids] = self.state.positions
         self.hierarchy.v[self.vertex_ids] = self.state.velocities
         return self.hierarchy
+
+    def _merge_would_sink(self, vertices: np.ndarray) -> np.ndarray:
+        """For split particles (pool ids): would removing them let the coarse edge
+        through them sink into an obstacle (more than half the contact thickness)?
+        Such a particle is a contact support and is not merged away."""
+        ends = np.searchsorted(self.vertex_ids, self.hierarchy.vertex_edge[vertices])
+        midpoints = 0.5 * (self.positions[ends[:, 0]] + self.positions[ends[:, 1]])
+        phi = np.min([o.distance(midpoints)[0] for o in self.obstacles], axis=0)
+        return phi < 0.5 * self.scene.contact.thickness
 
     def apply_mesh_operations(self, ops) -> None:
         """Apply :class:`~cloth_lod_ros.hierarchy.Split`/``Merge`` values (LOD on only).
@@ -421,10 +580,17 @@ class ClothSim:
         ``(splits, merges)`` performed.
         """
         h, time = self.hierarchy, self.state.time
-        held_nodes = np.array([p.node for p in self.pins if p.active(time)], dtype=np.int64)
-        decision = self.lod_policy.decide(h, self.elements, self.vertex_ids,
-                                          self.triangle_ids, self.state.positions,
-                                          self.state.velocities, time, held_nodes)
+        held_nodes = self._held_nodes()
+        detail_points = np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
+        in_contact = np.zeros(len(self.vertex_ids), dtype=bool)
+        if (self.contacts is not None and len(self.contacts)
+                and self._contacts_version == h.version):     # same compact numbering
+            in_contact[self.contacts.indices] = True
+        decision = self.lod_policy.decide(
+            h, self.elements, self.vertex_ids, self.triangle_ids, self.state.positions,
+            self.state.velocities, time, held_nodes, detail_points=detail_points,
+            in_contact=in_contact,
+            supported=self._merge_would_sink if self.obstacles else None)
         if not decision.refine and not decision.merge:
             return 0, 0
         self._sync_hierarchy()

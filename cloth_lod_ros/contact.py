@@ -1,0 +1,221 @@
+"""Analytic obstacles and particle contact (BW §5.3, §6; DESIGN.md §3).
+
+Each obstacle gives, for query points, a signed distance φ (m, negative
+inside) and the outward unit normal of the nearest surface point, vectorised.
+Contact is a *velocity constraint* in the filtered PCG: a particle closer than
+``thickness`` to a surface may not move towards it; its normal velocity is
+prescribed so that it reaches the offset surface (position correction through
+the velocity, limited to ``max_correction_speed`` to avoid popping).  The
+constraint is released when the force it would need pulls the particle in
+(the solve is repeated without it).  Coulomb friction acts on the tangential
+velocity after the solve, with the normal impulse the constraint applied:
+``|Δv_t| ≤ μ |Δv_n|``, so a particle sticks while gravity's tangential pull
+is below μ times the normal load.
+
+A scene without obstacles never calls into this module.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Obstacle", "Plane", "Sphere", "Cylinder", "Box", "make_obstacle",
+           "ContactSet", "find_contacts", "apply_friction"]
+
+
+def _normalise(v: np.ndarray) -> np.ndarray:
+    norm = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(norm > 0, norm, 1.0)
+
+
+def quaternion_matrix(q) -> np.ndarray:
+    """Rotation matrix of a unit quaternion ``[x, y, z, w]`` (ROS order)."""
+    x, y, z, w = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+@dataclass
+class Obstacle:
+    """Base: name and Coulomb friction coefficient (dimensionless)."""
+
+    name: str
+    friction: float
+
+    def distance(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(φ (m,), normal (m, 3))`` for points ``x`` ``(m, 3)`` in m."""
+        raise NotImplementedError
+
+
+@dataclass
+class Plane(Obstacle):
+    """Half-space below the plane through ``point`` with outward ``normal``."""
+
+    point: np.ndarray
+    normal: np.ndarray
+
+    def distance(self, x):
+        n = self.normal / np.linalg.norm(self.normal)
+        return (x - self.point) @ n, np.broadcast_to(n, x.shape)
+
+
+@dataclass
+class Sphere(Obstacle):
+    centre: np.ndarray
+    radius: float
+
+    def distance(self, x):
+        d = x - self.centre
+        r = np.linalg.norm(d, axis=1)
+        normal = np.where(r[:, None] > 0, d / np.maximum(r, 1e-300)[:, None], [0, 0, 1])
+        return r - self.radius, normal
+
+
+@dataclass
+class Cylinder(Obstacle):
+    """Solid finite cylinder (a disc when ``half_height`` is small): the paper's
+    circular table.  ``axis`` is a unit vector, ``centre`` the middle."""
+
+    centre: np.ndarray
+    axis: np.ndarray
+    radius: float
+    half_height: float
+
+    def distance(self, x):
+        a = self.axis / np.linalg.norm(self.axis)
+        d = x - self.centre
+        along = d @ a
+        radial_vec = d - along[:, None] * a
+        radial = np.linalg.norm(radial_vec, axis=1)
+        radial_dir = np.where(radial[:, None] > 1e-12,
+                              radial_vec / np.maximum(radial, 1e-300)[:, None],
+                              _any_perpendicular(a))
+        q_r, q_a = radial - self.radius, np.abs(along) - self.half_height
+        axial_dir = np.sign(along)[:, None] * a
+        axial_dir[along == 0] = a
+        outside_r, outside_a = np.maximum(q_r, 0), np.maximum(q_a, 0)
+        outside = np.hypot(outside_r, outside_a)
+        phi = outside + np.minimum(np.maximum(q_r, q_a), 0.0)
+        # Normal: the gradient of φ (outside: towards the nearest rim/face point).
+        grad_out = _normalise(outside_r[:, None] * radial_dir + outside_a[:, None] * axial_dir)
+        grad_in = np.where((q_r > q_a)[:, None], radial_dir, axial_dir)
+        return phi, np.where((outside > 0)[:, None], grad_out, grad_in)
+
+
+@dataclass
+class Box(Obstacle):
+    """Solid box: ``centre``, ``half_extents`` (m) and ``orientation`` [x, y, z, w]."""
+
+    centre: np.ndarray
+    half_extents: np.ndarray
+    orientation: np.ndarray
+
+    def distance(self, x):
+        rot = quaternion_matrix(self.orientation)
+        local = (x - self.centre) @ rot                      # world -> box frame
+        q = np.abs(local) - self.half_extents
+        outside = np.linalg.norm(np.maximum(q, 0), axis=1)
+        phi = outside + np.minimum(q.max(axis=1), 0.0)
+        sign = np.where(local < 0, -1.0, 1.0)
+        grad_out = _normalise(np.maximum(q, 0) * sign)
+        grad_in = np.zeros_like(local)
+        k = q.argmax(axis=1)
+        grad_in[np.arange(len(x)), k] = sign[np.arange(len(x)), k]
+        local_normal = np.where((outside > 0)[:, None], grad_out, grad_in)
+        return phi, local_normal @ rot.T
+
+
+def _any_perpendicular(a: np.ndarray) -> np.ndarray:
+    helper = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
+    p = np.cross(a, helper)
+    return p / np.linalg.norm(p)
+
+
+def make_obstacle(cfg) -> Obstacle:
+    """Build an obstacle from :class:`cloth_lod_ros.config.ObstacleConfig`."""
+    kind = cfg.type
+    if kind == "plane":
+        return Plane(cfg.name, cfg.friction, np.array(cfg.centre), np.array(cfg.normal))
+    if kind == "sphere":
+        return Sphere(cfg.name, cfg.friction, np.array(cfg.centre), cfg.radius)
+    if kind in ("cylinder", "disc"):
+        return Cylinder(cfg.name, cfg.friction, np.array(cfg.centre), np.array(cfg.axis),
+                        cfg.radius, cfg.half_height)
+    if kind == "box":
+        return Box(cfg.name, cfg.friction, np.array(cfg.centre),
+                   np.array(cfg.half_extents), np.array(cfg.orientation))
+    raise ValueError(f"unknown obstacle type {kind!r}")
+
+
+@dataclass
+class ContactSet:
+    """Particles in contact this step.
+
+    Attributes:
+        indices: ``(k,)`` particle indices; ``normals``: ``(k, 3)`` outward;
+        distance: ``(k,)`` φ − thickness (m, negative = inside the offset
+        surface); ``friction``: ``(k,)`` μ of the touched obstacle.
+    """
+
+    indices: np.ndarray
+    normals: np.ndarray
+    distance: np.ndarray
+    friction: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def subset(self, keep: np.ndarray) -> "ContactSet":
+        return ContactSet(self.indices[keep], self.normals[keep], self.distance[keep],
+                          self.friction[keep])
+
+
+def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
+                  exclude: np.ndarray | None = None) -> ContactSet:
+    """Particles within ``thickness`` (m) of any obstacle (the deepest one wins).
+
+    Args:
+        x: ``(n, 3)`` positions, m.
+        exclude: particle indices never constrained by contact (held ones).
+    """
+    n = len(x)
+    best = np.full(n, np.inf)
+    normal = np.zeros((n, 3))
+    mu = np.zeros(n)
+    for obstacle in obstacles:
+        phi, nrm = obstacle.distance(x)
+        closer = phi < best
+        best[closer] = phi[closer]
+        normal[closer] = nrm[closer]
+        mu[closer] = obstacle.friction
+    touching = best < thickness
+    if exclude is not None and len(exclude):
+        touching[exclude] = False
+    idx = np.flatnonzero(touching)
+    return ContactSet(idx, normal[idx], best[idx] - thickness, mu[idx])
+
+
+def apply_friction(velocities: np.ndarray, contacts: ContactSet,
+                   normal_impulse_per_mass: np.ndarray) -> np.ndarray:
+    """Coulomb friction on the tangential velocity of contacting particles.
+
+    Args:
+        velocities: ``(n, 3)`` velocities after the solve (m/s); modified copy returned.
+        contacts: the contacts that stayed active in the solve.
+        normal_impulse_per_mass: ``(k,)`` ``|Δv_n|`` the constraint applied (m/s).
+    """
+    out = velocities.copy()
+    if not len(contacts):
+        return out
+    v = out[contacts.indices]
+    vn = np.einsum("kd,kd->k", v, contacts.normals)
+    tangential = v - vn[:, None] * contacts.normals
+    speed = np.linalg.norm(tangential, axis=1)
+    budget = contacts.friction * np.maximum(normal_impulse_per_mass, 0.0)
+    scale = np.where(speed > budget, 1.0 - budget / np.maximum(speed, 1e-300), 0.0)
+    out[contacts.indices] = vn[:, None] * contacts.normals + scale[:, None] * tangential
+    return out

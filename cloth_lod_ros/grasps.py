@@ -1,0 +1,145 @@
+"""Grasps: grippers that hold the cloth at material points and move it.
+
+A closed grasp holds one particle (``width`` 0) or every particle within
+``width/2`` of its material point (a patch).  At closing, each held particle's
+offset from the grip point is stored in the grip frame, so a pose
+(position + orientation) places all of them rigidly.  The *effective* pose
+follows the commanded target at no more than ``max_speed`` (m/s) and
+``max_angular_speed`` (rad/s): a target that jumps (a teleport, a dropped
+message, a bad clock) is caught up over the following steps instead of making
+the cloth explode, and the jump is logged.  Held particles then get the
+prescribed velocity that lands them exactly on their targets at the end of the
+step (the same exact constraint as pins).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+__all__ = ["Grasp"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Grasp:
+    """Run-time state of one grasp.
+
+    Attributes:
+        name: label; uv: material point (m); width: patch diameter in (u, v), m.
+        max_speed: m/s; max_angular_speed: rad/s.
+        waypoints: ``(w, 4)`` scripted ``[t, x, y, z]`` targets (empty: none).
+        close_time, open_time: scripted events (s) or None.
+        closed: whether it holds now.
+        nodes: permanent ids of held particles (pool ids with LOD on).
+        offsets: ``(k, 3)`` held particles' offsets in the grip frame, m.
+        position, rotation: effective pose (m, scipy Rotation).
+        command_position, command_rotation: the target pose (None: hold still).
+        jumps: how many times the target moved faster than the limits.
+    """
+
+    name: str
+    uv: np.ndarray
+    width: float
+    tolerance: float
+    max_speed: float
+    max_angular_speed: float
+    waypoints: np.ndarray
+    close_time: float | None = None
+    open_time: float | None = None
+    closed: bool = False
+    nodes: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    offsets: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rotation: Rotation = field(default_factory=Rotation.identity)
+    command_position: np.ndarray | None = None
+    command_rotation: Rotation | None = None
+    jumps: int = 0
+    lagging: bool = False
+
+    @classmethod
+    def from_config(cls, cfg) -> "Grasp":
+        return cls(name=cfg.name, uv=np.asarray(cfg.uv, dtype=float), width=cfg.width,
+                   tolerance=cfg.tolerance, max_speed=cfg.max_speed,
+                   max_angular_speed=cfg.max_angular_speed,
+                   waypoints=np.asarray(cfg.waypoints, dtype=float).reshape(-1, 4),
+                   close_time=cfg.close_time, open_time=cfg.open_time)
+
+    def attach(self, nodes: np.ndarray, positions: np.ndarray, grip_point: np.ndarray) -> None:
+        """Close on particles ``nodes`` now at ``positions`` ``(k, 3)``; the grip
+        frame starts at ``grip_point`` with the commanded (or identity) orientation."""
+        self.closed = True
+        self.nodes = np.asarray(nodes, dtype=np.int64)
+        self.position = np.asarray(grip_point, dtype=float).copy()
+        self.rotation = self.command_rotation or Rotation.identity()
+        self.offsets = self.rotation.inv().apply(positions - self.position)
+        if self.command_position is None and len(self.waypoints) == 0:
+            self.command_position = self.position.copy()
+
+    def release(self) -> None:
+        self.closed = False
+        self.nodes = np.zeros(0, dtype=np.int64)
+        self.offsets = np.zeros((0, 3))
+
+    def set_target(self, position, orientation=None) -> None:
+        """Command a target pose: position (m) and optional quaternion [x, y, z, w].
+
+        Raises:
+            ValueError: non-finite or malformed values (the old target stays).
+        """
+        position = np.asarray(position, dtype=float)
+        if position.shape != (3,) or not np.all(np.isfinite(position)):
+            raise ValueError(f"grasp target must be 3 finite numbers, got {position!r}")
+        rotation = None
+        if orientation is not None:
+            q = np.asarray(orientation, dtype=float)
+            if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
+                raise ValueError(f"grasp orientation must be a quaternion [x, y, z, w], got {q!r}")
+            rotation = Rotation.from_quat(q / np.linalg.norm(q))
+        self.waypoints = np.zeros((0, 4))            # a live command replaces the script
+        self.command_position = position.copy()
+        if rotation is not None:
+            self.command_rotation = rotation
+
+    def target_at(self, time: float) -> tuple[np.ndarray, Rotation]:
+        """The commanded pose at ``time`` (scripted waypoints or the live command)."""
+        if len(self.waypoints):
+            t = self.waypoints[:, 0]
+            position = np.array([np.interp(time, t, self.waypoints[:, d]) for d in (1, 2, 3)])
+        elif self.command_position is not None:
+            position = self.command_position
+        else:
+            position = self.position
+        return position, self.command_rotation or self.rotation
+
+    def advance(self, time: float, h: float) -> None:
+        """Move the effective pose towards the target of ``time``, speed limited."""
+        target, target_rotation = self.target_at(time)
+        step = target - self.position
+        distance = float(np.linalg.norm(step))
+        limit = self.max_speed * h
+        if distance > limit:
+            if not self.lagging:
+                self.jumps += 1
+                log.warning("grasp %r: target is %.3f m away (more than %.3f m/s x %.4g s); "
+                            "catching up at the speed limit", self.name, distance,
+                            self.max_speed, h)
+            self.lagging = True
+            step *= limit / distance
+        else:
+            self.lagging = False
+        self.position = self.position + step
+        angle = (target_rotation * self.rotation.inv()).magnitude()
+        max_angle = self.max_angular_speed * h
+        if angle > 1e-12:
+            fraction = min(1.0, max_angle / angle)
+            slerp = Slerp([0.0, 1.0], Rotation.concatenate([self.rotation, target_rotation]))
+            self.rotation = slerp([fraction])[0]
+
+    def held_targets(self) -> np.ndarray:
+        """``(k, 3)`` positions the held particles must have (m)."""
+        return self.position + self.rotation.apply(self.offsets)
