@@ -2,15 +2,17 @@
 
 Each obstacle gives, for query points, a signed distance φ (m, negative
 inside) and the outward unit normal of the nearest surface point, vectorised.
-Contact is a *velocity constraint* in the filtered PCG: a particle closer than
-``thickness`` to a surface may not move towards it; its normal velocity is
-prescribed so that it reaches the offset surface (position correction through
-the velocity, limited to ``max_correction_speed`` to avoid popping).  The
+Contact is a *velocity constraint* in the filtered PCG: a particle that is, or
+would get this step, near a surface (see :func:`find_contacts`) has its normal
+velocity prescribed so that it ends the step exactly on the offset surface at
+``thickness`` (position correction through the velocity: a penetrating particle
+is pushed out at most ``max_correction_speed``).  The
 constraint is released when the force it would need pulls the particle in
-(the solve is repeated without it).  Coulomb friction acts on the tangential
-velocity after the solve, with the normal impulse the constraint applied:
-``|Δv_t| ≤ μ |Δv_n|``, so a particle sticks while gravity's tangential pull
-is below μ times the normal load.
+(the solve is repeated without it).  Coulomb friction is part of the implicit
+solve (``ImplicitEulerSolver._solve_with_contacts``): from the frictionless
+normal impulse λ, a contact sticks (fully constrained) while its tangential
+momentum is within μλ and slips with the impulse −μλ t̂ otherwise, so the rest
+of the cloth responds to the friction in the same step.
 
 A scene without obstacles never calls into this module.
 """
@@ -22,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Obstacle", "Plane", "Sphere", "Cylinder", "Box", "make_obstacle",
-           "ContactSet", "find_contacts", "apply_friction"]
+           "ContactSet", "find_contacts"]
 
 
 def _normalise(v: np.ndarray) -> np.ndarray:
@@ -175,11 +177,20 @@ class ContactSet:
 
 
 def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
-                  exclude: np.ndarray | None = None) -> ContactSet:
-    """Particles within ``thickness`` (m) of any obstacle (the deepest one wins).
+                  exclude: np.ndarray | None = None, velocities: np.ndarray | None = None,
+                  h: float = 0.0) -> ContactSet:
+    """Particles that touch, or would reach this step, an obstacle's offset surface.
+
+    *Speculative* contacts: a particle is a candidate when
+    ``φ + h·min(v·n, 0) < 2·thickness``, so that one moving fast is caught
+    before it tunnels into a thin obstacle, and one resting on a surface stays
+    constrained instead of falling a step (g h²) in and out of the band.  The
+    solve then prescribes the normal velocity that lands it exactly on the
+    offset surface (or releases it if that would pull).
 
     Args:
-        x: ``(n, 3)`` positions, m.
+        x: ``(n, 3)`` positions, m; velocities: ``(n, 3)`` m/s; h: step, s.
+        thickness: distance kept from surfaces, m.
         exclude: particle indices never constrained by contact (held ones).
     """
     n = len(x)
@@ -192,30 +203,11 @@ def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
         best[closer] = phi[closer]
         normal[closer] = nrm[closer]
         mu[closer] = obstacle.friction
-    touching = best < thickness
+    approach = 0.0
+    if velocities is not None and h > 0:
+        approach = h * np.minimum(np.einsum("nd,nd->n", velocities, normal), 0.0)
+    touching = best + approach < 2.0 * thickness
     if exclude is not None and len(exclude):
         touching[exclude] = False
     idx = np.flatnonzero(touching)
     return ContactSet(idx, normal[idx], best[idx] - thickness, mu[idx])
-
-
-def apply_friction(velocities: np.ndarray, contacts: ContactSet,
-                   normal_impulse_per_mass: np.ndarray) -> np.ndarray:
-    """Coulomb friction on the tangential velocity of contacting particles.
-
-    Args:
-        velocities: ``(n, 3)`` velocities after the solve (m/s); modified copy returned.
-        contacts: the contacts that stayed active in the solve.
-        normal_impulse_per_mass: ``(k,)`` ``|Δv_n|`` the constraint applied (m/s).
-    """
-    out = velocities.copy()
-    if not len(contacts):
-        return out
-    v = out[contacts.indices]
-    vn = np.einsum("kd,kd->k", v, contacts.normals)
-    tangential = v - vn[:, None] * contacts.normals
-    speed = np.linalg.norm(tangential, axis=1)
-    budget = contacts.friction * np.maximum(normal_impulse_per_mass, 0.0)
-    scale = np.where(speed > budget, 1.0 - budget / np.maximum(speed, 1e-300), 0.0)
-    out[contacts.indices] = vn[:, None] * contacts.normals + scale[:, None] * tangential
-    return out

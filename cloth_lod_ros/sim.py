@@ -218,17 +218,20 @@ class ImplicitEulerSolver:
                              prescribed=target_velocity - v[held])
         released = 0
         if contacts is not None and len(contacts):
-            result, contacts, impulse, released = self._solve_with_contacts(
-                matrix, rhs, pinned, contacts, v, h, max_correction_speed)
+            result, contacts, released = self._solve_with_contacts(
+                matrix, rhs, pinned, contacts, masses, v, h, max_correction_speed)
         else:
             result = self._solve(matrix, rhs, pinned)
-            impulse = None
         t3 = _time.perf_counter()
         new_v = v + result.dv
-        if impulse is not None:
-            from .contact import apply_friction
-            new_v = apply_friction(new_v, contacts, impulse / masses[contacts.indices])
         new_x = x + h * new_v
+        if contacts is not None and len(contacts):
+            # Inelastic contact: the normal velocity that moved a particle onto
+            # the offset surface (landing or push-out) is a position correction,
+            # not motion to keep; storing it would bounce it off next step.
+            n_c = contacts.normals
+            vn = np.einsum("kd,kd->k", new_v[contacts.indices], n_c)
+            new_v[contacts.indices] -= vn[:, None] * n_c
         # Held particles: exactly on target (the velocity above agrees to rounding).
         new_x[held] = targets
         new_v[held] = target_velocity
@@ -245,34 +248,76 @@ class ImplicitEulerSolver:
                             guess=self._previous_dv, tolerance=self.config.tolerance,
                             max_iterations=self.config.max_iterations)
 
-    def _solve_with_contacts(self, matrix, rhs, pinned, contacts, v, h, max_speed):
-        """Solve with pins plus one-sided contact constraints (BW §5.3, §6)."""
+    def _solve_with_contacts(self, matrix, rhs, pinned, contacts, masses, v, h, max_speed):
+        """Solve with pins plus one-sided contacts and Coulomb friction (BW §5.3, §6).
+
+        1. Every contact is held: its normal velocity lands it on the offset
+           surface (a penetrating one is pushed out at most ``max_speed``) and,
+           where the obstacle has friction, its tangential velocity is 0.
+           The reaction ``R = A Δv − b`` (an impulse, N·s) is what holding
+           costs; contacts whose normal reaction would pull are released and
+           the system is solved again (once).
+        2. Coulomb: a contact whose tangential reaction exceeds ``μ R·n``
+           cannot stick; it slides on the surface with the friction impulse
+           ``μ (R·n) R̂_t`` (opposing the slip) in the right-hand side, and one
+           more solve gives the step.  Friction is inside the implicit solve,
+           so the rest of the cloth responds to it in the same step.
+        """
         released = 0
         iterations = 0
-        for attempt in range(2):
+        slip = np.zeros(len(contacts), dtype=bool)
+        friction_impulse = np.zeros((len(contacts), 3))
+        for attempt in range(3):
             normals = contacts.normals
-            # Normal velocity at the end of the step: out of the offset surface,
-            # at most max_speed; never into the obstacle.
-            target_vn = np.clip(-contacts.distance / h, 0.0, max_speed)
-            current_vn = np.einsum("kd,kd->k", v[contacts.indices], normals)
-            constraints = Constraints(
-                indices=np.concatenate([pinned.indices, contacts.indices]),
-                projectors=np.concatenate([pinned.projectors,
-                                           np.eye(3) - normals[:, :, None] * normals[:, None, :]]),
-                prescribed=np.concatenate([pinned.prescribed,
-                                           (target_vn - current_vn)[:, None] * normals]))
-            result = self._solve(matrix, rhs, constraints)
+            target_vn = np.minimum(-contacts.distance / h, max_speed)
+            current = v[contacts.indices]
+            sliding = (contacts.friction <= 0.0) | slip
+            projectors = np.zeros((len(contacts), 3, 3))
+            projectors[sliding] = np.eye(3) - normals[sliding, :, None] * normals[sliding, None, :]
+            # Held contacts: full Δv to (target_vn n); sliding: normal part only.
+            prescribed = target_vn[:, None] * normals - current
+            current_vn = np.einsum("kd,kd->k", current, normals)
+            prescribed[sliding] = ((target_vn - current_vn)[sliding, None] * normals[sliding])
+            step_rhs = rhs
+            if slip.any():
+                step_rhs = rhs.copy()
+                step_rhs[contacts.indices] += friction_impulse
+            result = self._solve(matrix, step_rhs,
+                                 _merge_constraints(pinned, contacts.indices, projectors,
+                                                    prescribed))
             iterations += result.iterations
-            # Constraint impulse along n: h f_n = n · (A Δv − b) (N·s, > 0 pushes out).
-            reaction = (matrix @ result.dv.ravel()).reshape(-1, 3) - rhs
-            impulse = np.einsum("kd,kd->k", reaction[contacts.indices], normals)
-            pulling = impulse < 0.0
-            if attempt == 1 or not pulling.any():
+            if attempt == 2:
                 break
-            released += int(pulling.sum())
-            contacts = contacts.subset(~pulling)
+            reaction = ((matrix @ result.dv.ravel()).reshape(-1, 3) - step_rhs)[contacts.indices]
+            normal_reaction = np.einsum("kd,kd->k", reaction, normals)
+            pulling = normal_reaction < 0.0
+            if pulling.any() and attempt == 0:
+                released += int(pulling.sum())
+                contacts = contacts.subset(~pulling)
+                slip = slip[~pulling]
+                friction_impulse = friction_impulse[~pulling]
+                if not len(contacts):
+                    result = self._solve(matrix, rhs, pinned)
+                    iterations += result.iterations
+                    break
+                continue
+            tangential = reaction - normal_reaction[:, None] * normals
+            magnitude = np.linalg.norm(tangential, axis=1)
+            limit = contacts.friction * np.maximum(normal_reaction, 0.0)
+            new_slip = (contacts.friction > 0.0) & (magnitude > limit) & ~slip
+            if not new_slip.any():
+                break
+            slip |= new_slip
+            friction_impulse[new_slip] = (limit[new_slip] / magnitude[new_slip])[:, None] \
+                * tangential[new_slip]
         result.iterations = iterations
-        return result, contacts, np.maximum(impulse, 0.0), released
+        return result, contacts, released
+
+
+def _merge_constraints(pinned: Constraints, indices, projectors, prescribed) -> Constraints:
+    return Constraints(indices=np.concatenate([pinned.indices, indices]),
+                       projectors=np.concatenate([pinned.projectors, projectors]),
+                       prescribed=np.concatenate([pinned.prescribed, prescribed]))
 
 
 class ClothSim:
@@ -493,7 +538,8 @@ class ClothSim:
         contacts = None
         if self.obstacles:
             contacts = find_contacts(self.obstacles, self.state.positions,
-                                     self.scene.contact.thickness, exclude=held[0])
+                                     self.scene.contact.thickness, exclude=held[0],
+                                     velocities=self.state.velocities, h=h)
         self.contacts = contacts
         self._contacts_version = self.hierarchy.version if self.hierarchy is not None else 0
         new_state, report = self.solver.step(
