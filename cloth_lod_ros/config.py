@@ -383,7 +383,7 @@ def scene_from_dict(data: Any) -> SceneConfig:
         if (grasp.close_time is not None and grasp.open_time is not None
                 and grasp.open_time <= grasp.close_time):
             raise SceneError(f"field 'grasps[{i}].open_time' must come after close_time")
-        if not grasp.name.replace("_", "").isalnum():
+        if not re.fullmatch(r"[A-Za-z0-9_]+", grasp.name):  # ASCII: str.isalnum takes "é"
             raise SceneError(f"field 'grasps[{i}].name' = {grasp.name!r} must be letters, "
                              "digits and underscores (it names ROS topics)")
     for i, pin in enumerate(scene.pins):

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Obstacle", "Plane", "Sphere", "Cylinder", "Box", "make_obstacle",
-           "ContactSet", "find_contacts"]
+           "ContactSet", "find_contacts", "penetrations"]
 
 
 def _normalise(v: np.ndarray) -> np.ndarray:
@@ -160,20 +160,36 @@ class ContactSet:
     Attributes:
         indices: ``(k,)`` particle indices; ``normals``: ``(k, 3)`` outward;
         distance: ``(k,)`` φ − thickness (m, negative = inside the offset
-        surface); ``friction``: ``(k,)`` μ of the touched obstacle.
+        surface); ``friction``: ``(k,)`` μ of the touched obstacle;
+        ``hold``: ``(k,)`` contacts that may not be released (the particle was
+        found inside the obstacle, so letting go is not an option).
     """
 
     indices: np.ndarray
     normals: np.ndarray
     distance: np.ndarray
     friction: np.ndarray
+    hold: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.hold is None:
+            self.hold = np.zeros(len(self.indices), dtype=bool)
 
     def __len__(self) -> int:
         return len(self.indices)
 
     def subset(self, keep: np.ndarray) -> "ContactSet":
         return ContactSet(self.indices[keep], self.normals[keep], self.distance[keep],
-                          self.friction[keep])
+                          self.friction[keep], self.hold[keep])
+
+    def union(self, other: "ContactSet") -> "ContactSet":
+        """Contacts of both; where a particle is in both, ``other`` wins."""
+        keep = ~np.isin(self.indices, other.indices)
+        return ContactSet(np.concatenate([self.indices[keep], other.indices]),
+                          np.concatenate([self.normals[keep], other.normals]),
+                          np.concatenate([self.distance[keep], other.distance]),
+                          np.concatenate([self.friction[keep], other.friction]),
+                          np.concatenate([self.hold[keep], other.hold]))
 
 
 def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
@@ -211,3 +227,37 @@ def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
         touching[exclude] = False
     idx = np.flatnonzero(touching)
     return ContactSet(idx, normal[idx], best[idx] - thickness, mu[idx])
+
+
+def penetrations(obstacles: list[Obstacle], start: np.ndarray, end: np.ndarray,
+                 thickness: float, exclude: np.ndarray | None = None,
+                 tolerance: float = 0.25) -> ContactSet:
+    """Contacts for particles whose end-of-step position is inside the offset surface.
+
+    A particle that ends more than ``tolerance × thickness`` inside gets a
+    contact on the tangent plane at the surface point nearest its predicted
+    position; ``distance`` is measured from its *start* position to that plane,
+    so the re-solved step lands it on the offset surface.
+
+    Args:
+        start, end: ``(n, 3)`` positions at the start of the step and as
+            predicted by the solve, m.
+    """
+    n = len(end)
+    best = np.full(n, np.inf)
+    normal = np.zeros((n, 3))
+    mu = np.zeros(n)
+    for obstacle in obstacles:
+        phi, nrm = obstacle.distance(end)
+        closer = phi < best
+        best[closer] = phi[closer]
+        normal[closer] = nrm[closer]
+        mu[closer] = obstacle.friction
+    inside = best < (1.0 - tolerance) * thickness
+    if exclude is not None and len(exclude):
+        inside[exclude] = False
+    idx = np.flatnonzero(inside)
+    surface = end[idx] - best[idx, None] * normal[idx]
+    along = np.einsum("kd,kd->k", start[idx] - surface, normal[idx])
+    return ContactSet(idx, normal[idx], along - thickness, mu[idx],
+                      np.ones(len(idx), dtype=bool))

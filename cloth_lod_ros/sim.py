@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import SceneConfig, load_scene
-from .contact import find_contacts, make_obstacle
+from .contact import find_contacts, make_obstacle, penetrations
 from .grasps import Grasp
 from .forces import Elements, elastic_energies, evaluate, precompute
 from .hierarchy import Hierarchy48
@@ -290,7 +290,7 @@ class ImplicitEulerSolver:
                 break
             reaction = ((matrix @ result.dv.ravel()).reshape(-1, 3) - step_rhs)[contacts.indices]
             normal_reaction = np.einsum("kd,kd->k", reaction, normals)
-            pulling = normal_reaction < 0.0
+            pulling = (normal_reaction < 0.0) & ~contacts.hold
             if pulling.any() and attempt == 0:
                 released += int(pulling.sum())
                 contacts = contacts.subset(~pulling)
@@ -540,11 +540,26 @@ class ClothSim:
             contacts = find_contacts(self.obstacles, self.state.positions,
                                      self.scene.contact.thickness, exclude=held[0],
                                      velocities=self.state.velocities, h=h)
-        self.contacts = contacts
-        self._contacts_version = self.hierarchy.version if self.hierarchy is not None else 0
         new_state, report = self.solver.step(
             self.elements, self.masses, self.state, held, h, contacts,
             self.scene.contact.max_correction_speed)
+        for _ in range(2 if self.obstacles else 0):
+            # A particle that the start-of-step test missed (accelerated into an
+            # obstacle, or released and pushed in) gets a contact and the step is
+            # solved again.
+            missed = penetrations(self.obstacles, self.state.positions,
+                                  new_state.positions, self.scene.contact.thickness,
+                                  exclude=held[0])
+            if not len(missed):
+                break
+            contacts = contacts.union(missed)
+            new_state, retry = self.solver.step(
+                self.elements, self.masses, self.state, held, h, contacts,
+                self.scene.contact.max_correction_speed)
+            retry.iterations += report.iterations
+            report = retry
+        self.contacts = contacts
+        self._contacts_version = self.hierarchy.version if self.hierarchy is not None else 0
         if not (np.isfinite(report.residual)
                 and np.all(np.isfinite(new_state.positions))
                 and np.all(np.isfinite(new_state.velocities))):
@@ -640,10 +655,35 @@ class ClothSim:
         if not decision.refine and not decision.merge:
             return 0, 0
         self._sync_hierarchy()
+        before = h.vertex_end
         splits, merges = LodPolicy.apply(h, decision, time)
         if splits or merges:
+            if self.obstacles and splits:
+                self._lift_new_particles(before)
             self._adopt_hierarchy()
         return splits, merges
+
+    def _lift_new_particles(self, first_new: int) -> None:
+        """Put particles just made by splits that lie inside an obstacle's offset
+        surface onto it.  A split places them on the chord between two particles,
+        which sags into a curved obstacle (by s²/8R); only these new particles
+        move, and their velocities (hence momentum) are unchanged."""
+        h = self.hierarchy
+        new = h.active_vertices()
+        known = set(self.vertex_ids.tolist())
+        new = np.array([i for i in new if i not in known], dtype=np.int64)
+        if not len(new):
+            return
+        thickness = self.scene.contact.thickness
+        x = h.x[new]
+        best = np.full(len(new), np.inf)
+        normal = np.zeros((len(new), 3))
+        for obstacle in self.obstacles:
+            phi, nrm = obstacle.distance(x)
+            closer = phi < best
+            best[closer], normal[closer] = phi[closer], nrm[closer]
+        inside = best < thickness
+        h.x[new[inside]] += (thickness - best[inside])[:, None] * normal[inside]
 
     def run(self, duration: float | None = None, callback=None) -> list[StepStats]:
         """Step until ``duration`` more seconds (default: the scene's) have passed."""
