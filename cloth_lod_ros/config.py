@@ -130,6 +130,8 @@ class ObstacleConfig:
     half_extents: tuple = _spec("vec3", "m", gt=0, default=(0.5, 0.5, 0.5), doc="box")
     orientation: tuple = _spec("quat", "", default=(0.0, 0.0, 0.0, 1.0),
                                doc="box: unit quaternion [x, y, z, w]")
+    rounding: float = _spec("float", "m", ge=0, default=0.0,
+                            doc="box: radius of its rounded edges")
     friction: float = _spec("float", "", ge=0, default=0.3, doc="Coulomb coefficient")
 
 
@@ -375,6 +377,10 @@ def scene_from_dict(data: Any) -> SceneConfig:
     if lod.enabled and lod.initial_level > cloth.level:
         raise SceneError(f"field 'lod.initial_level' ({lod.initial_level}) must not exceed "
                          f"'cloth.level' ({cloth.level}), the maximum level with LOD on")
+    for i, obstacle in enumerate(scene.obstacles):
+        if obstacle.type == "box" and obstacle.rounding >= min(obstacle.half_extents):
+            raise SceneError(f"field 'obstacles[{i}].rounding' must be below the smallest "
+                             "half extent")
     for i, grasp in enumerate(scene.grasps):
         u, v = grasp.uv
         if not (0.0 <= u <= cloth.width and 0.0 <= v <= cloth.height):

@@ -110,18 +110,22 @@ class Cylinder(Obstacle):
 
 @dataclass
 class Box(Obstacle):
-    """Solid box: ``centre``, ``half_extents`` (m) and ``orientation`` [x, y, z, w]."""
+    """Solid box: ``centre``, ``half_extents`` (m), ``orientation`` [x, y, z, w] and
+    edge ``rounding`` radius (m).  Rounded edges spread a cloth's wrap (and its
+    friction) over an arc; on a sharp edge the particle before the corner sees
+    only the top face and friction holds far more than the capstan law allows."""
 
     centre: np.ndarray
     half_extents: np.ndarray
     orientation: np.ndarray
+    rounding: float = 0.0
 
     def distance(self, x):
         rot = quaternion_matrix(self.orientation)
         local = (x - self.centre) @ rot                      # world -> box frame
-        q = np.abs(local) - self.half_extents
+        q = np.abs(local) - (self.half_extents - self.rounding)
         outside = np.linalg.norm(np.maximum(q, 0), axis=1)
-        phi = outside + np.minimum(q.max(axis=1), 0.0)
+        phi = outside + np.minimum(q.max(axis=1), 0.0) - self.rounding
         sign = np.where(local < 0, -1.0, 1.0)
         grad_out = _normalise(np.maximum(q, 0) * sign)
         grad_in = np.zeros_like(local)
@@ -149,7 +153,7 @@ def make_obstacle(cfg) -> Obstacle:
                         cfg.radius, cfg.half_height)
     if kind == "box":
         return Box(cfg.name, cfg.friction, np.array(cfg.centre),
-                   np.array(cfg.half_extents), np.array(cfg.orientation))
+                   np.array(cfg.half_extents), np.array(cfg.orientation), cfg.rounding)
     raise ValueError(f"unknown obstacle type {kind!r}")
 
 

@@ -259,15 +259,18 @@ class ImplicitEulerSolver:
            the system is solved again (once).
         2. Coulomb: a contact whose tangential reaction exceeds ``μ R·n``
            cannot stick; it slides on the surface with the friction impulse
-           ``μ (R·n) R̂_t`` (opposing the slip) in the right-hand side, and one
-           more solve gives the step.  Friction is inside the implicit solve,
+           ``μ (R·n) R̂_t`` (opposing the slip) in the right-hand side, and the
+           system is solved again; repeated (at most 6 rounds) while new
+           contacts start to slip, because when one row lets go the next row
+           takes its load.  Friction is inside the implicit solve,
            so the rest of the cloth responds to it in the same step.
         """
         released = 0
         iterations = 0
         slip = np.zeros(len(contacts), dtype=bool)
         friction_impulse = np.zeros((len(contacts), 3))
-        for attempt in range(3):
+        rounds = 6          # a slip front moves one row of contacts per round
+        for attempt in range(rounds):
             normals = contacts.normals
             target_vn = np.minimum(-contacts.distance / h, max_speed)
             current = v[contacts.indices]
@@ -286,7 +289,8 @@ class ImplicitEulerSolver:
                                  _merge_constraints(pinned, contacts.indices, projectors,
                                                     prescribed))
             iterations += result.iterations
-            if attempt == 2:
+            self._previous_dv = result.dv          # warm start for the next round
+            if attempt == rounds - 1:
                 break
             reaction = ((matrix @ result.dv.ravel()).reshape(-1, 3) - step_rhs)[contacts.indices]
             normal_reaction = np.einsum("kd,kd->k", reaction, normals)
@@ -303,7 +307,10 @@ class ImplicitEulerSolver:
                 continue
             tangential = reaction - normal_reaction[:, None] * normals
             magnitude = np.linalg.norm(tangential, axis=1)
-            limit = contacts.friction * np.maximum(normal_reaction, 0.0)
+            # Normal load for friction: the reaction less what pushing a particle
+            # out of the offset surface costs (a position correction is not a load).
+            correction = masses[contacts.indices] * np.maximum(target_vn, 0.0)
+            limit = contacts.friction * np.maximum(normal_reaction - correction, 0.0)
             new_slip = (contacts.friction > 0.0) & (magnitude > limit) & ~slip
             if not new_slip.any():
                 break
