@@ -389,9 +389,9 @@ def scene_from_dict(data: Any) -> SceneConfig:
         if (grasp.close_time is not None and grasp.open_time is not None
                 and grasp.open_time <= grasp.close_time):
             raise SceneError(f"field 'grasps[{i}].open_time' must come after close_time")
-        if not re.fullmatch(r"[A-Za-z0-9_]+", grasp.name):  # ASCII: str.isalnum takes "é"
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", grasp.name):  # ASCII: str.isalnum takes "é"
             raise SceneError(f"field 'grasps[{i}].name' = {grasp.name!r} must be letters, "
-                             "digits and underscores (it names ROS topics)")
+                             "digits and underscores, not starting with a digit (it names ROS topics)")
     for i, pin in enumerate(scene.pins):
         u, v = pin.uv
         if not (0.0 <= u <= cloth.width and 0.0 <= v <= cloth.height):

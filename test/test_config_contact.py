@@ -249,3 +249,19 @@ def test_builtin_scenes_include_the_contact_scenes():
     names = set(builtin_scene_names())
     assert {"drop_on_disc", "drop_on_sphere", "table_drape", "grasp_lift"} <= names
     assert any(load_scene(n).obstacles for n in names)
+
+
+@pytest.mark.parametrize("name", ["1st", "9"])
+def test_grasp_name_may_not_start_with_a_digit(name):
+    with pytest.raises(SceneError, match=r"grasps\[0\]\.name"):
+        scene_from_dict({"cloth": {"width": 1, "height": 1, "base_blocks": [4, 4]},
+                         "simulation": {"time_step": 0.01, "duration": 1},
+                         "grasps": [{"name": name, "uv": [0, 0]}]})
+
+
+def test_box_rounding_must_fit_the_box():
+    with pytest.raises(SceneError, match=r"obstacles\[0\]\.rounding"):
+        scene_from_dict({"cloth": {"width": 1, "height": 1, "base_blocks": [4, 4]},
+                         "simulation": {"time_step": 0.01, "duration": 1},
+                         "obstacles": [{"type": "box", "half_extents": [0.1, 0.5, 0.5],
+                                        "rounding": 0.1}]})

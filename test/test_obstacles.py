@@ -417,3 +417,21 @@ def test_make_obstacle_refuses_an_unknown_type():
     cfg = _scene([{"type": "sphere"}]).obstacles[0]
     with pytest.raises(ValueError, match="torus"):
         make_obstacle(dataclasses.replace(cfg, type="torus"))
+
+
+def test_rounded_box_edges_are_arcs():
+    """A box with rounded edges: points off an edge are at (distance to the edge
+    axis − rounding), and the normal turns smoothly from the top to the side."""
+    from cloth_lod_ros.contact import Box
+    box = Box("t", 0.2, np.array([0.0, 0.0, -0.4]), np.array([0.5, 0.6, 0.4]),
+              np.array([0.0, 0.0, 0.0, 1.0]), rounding=0.03)
+    axis_point = np.array([0.47, 0.0, -0.03])            # centre of the edge's arc
+    angles = np.linspace(0.0, np.pi / 2, 7)
+    pts = axis_point + 0.05 * np.column_stack([np.sin(angles), np.zeros(7), np.cos(angles)])
+    phi, normal = box.distance(pts)
+    np.testing.assert_allclose(phi, 0.05 - 0.03, atol=1e-12)
+    np.testing.assert_allclose(normal, (pts - axis_point) / 0.05, atol=1e-12)
+    # Far from the edges it is the plain box.
+    phi_top, n_top = box.distance(np.array([[0.0, 0.0, 0.01]]))
+    np.testing.assert_allclose(phi_top, [0.01])
+    np.testing.assert_allclose(n_top, [[0, 0, 1]])
