@@ -662,23 +662,20 @@ class ClothSim:
         if not decision.refine and not decision.merge:
             return 0, 0
         self._sync_hierarchy()
-        before = h.vertex_end
         splits, merges = LodPolicy.apply(h, decision, time)
         if splits or merges:
             if self.obstacles and splits:
-                self._lift_new_particles(before)
+                self._lift_new_particles()
             self._adopt_hierarchy()
         return splits, merges
 
-    def _lift_new_particles(self, first_new: int) -> None:
+    def _lift_new_particles(self) -> None:
         """Put particles just made by splits that lie inside an obstacle's offset
         surface onto it.  A split places them on the chord between two particles,
         which sags into a curved obstacle (by s²/8R); only these new particles
         move, and their velocities (hence momentum) are unchanged."""
         h = self.hierarchy
-        new = h.active_vertices()
-        known = set(self.vertex_ids.tolist())
-        new = np.array([i for i in new if i not in known], dtype=np.int64)
+        new = np.setdiff1d(h.active_vertices(), self.vertex_ids, assume_unique=True)
         if not len(new):
             return
         thickness = self.scene.contact.thickness
