@@ -21,7 +21,9 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.rviz")),
         (f"share/{PACKAGE}/config/scenes", glob("config/scenes/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.py")),
     ],
     python_requires=">=3.10",
     install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6",
@@ -39,6 +41,7 @@ setup(
     entry_points={
         "console_scripts": [
             "cloth-lod = cloth_lod_ros.cli:main",
+            "cloth_lod_node = cloth_lod_ros.node:main",
         ],
     },
 )

@@ -1,0 +1,325 @@
+"""``cloth_lod_node``: the adaptive cloth simulator as a ROS 2 node (DESIGN.md §6).
+
+Thin by design: declare parameters, build a :class:`~cloth_lod_ros.sim.ClothSim`,
+wire topics and services.  Inputs (grasp poses, open/close) go straight into the
+simulator; outputs are built vectorised by :mod:`cloth_lod_ros.markers`.
+
+Topics (relative names, so a namespace or remap moves them all):
+  in:  ``grasp/<name>/pose`` (geometry_msgs/PoseStamped) for each grasp of the scene
+  out: ``cloth/markers`` (visualization_msgs/MarkerArray), ``cloth/lod_stats``
+       (diagnostic_msgs/DiagnosticArray), ``cloth/points`` (sensor_msgs/PointCloud2,
+       one point per particle), ``cloth/grid`` (organised PointCloud2 sampled on a
+       fixed (u, v) grid: the same points every message, whatever the mesh)
+Services: ``grasp/<name>/close`` (std_srvs/SetBool: true holds, false releases),
+  ``cloth/reset``, ``cloth/step`` (std_srvs/Trigger), ``cloth/pause`` (std_srvs/SetBool).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Header
+from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import MarkerArray
+
+from .config import SceneError, load_scene
+from .markers import cloth_markers, serialize_marker_array, serialize_point_cloud, unique_edges
+from .sim import ClothSim, SimulationError
+
+__all__ = ["ClothLodNode", "main"]
+
+# Live-tunable parameters: name -> (scene path, unit, low, high).
+LIVE = {
+    "lod.refine_threshold": ("lod.refine_threshold", "m", 1e-6, 1.0),
+    "lod.coarsen_threshold": ("lod.coarsen_threshold", "m", 1e-7, 1.0),
+    "lod.min_lifetime": ("lod.min_lifetime", "s", 0.0, 60.0),
+    "lod.max_hinge_rate": ("lod.max_hinge_rate", "rad/s", 1e-6, 1e3),
+    "lod.max_bend_force": ("lod.max_bend_force", "N", 1e-9, 1e3),
+    "material.stretch_stiffness": ("material.stretch_stiffness", "N/m", 0.0, 1e7),
+    "material.shear_stiffness": ("material.shear_stiffness", "N/m", 0.0, 1e7),
+    "material.bend_stiffness": ("material.bend_stiffness", "N*m", 0.0, 10.0),
+    "material.air_drag": ("material.air_drag", "1/s", 0.0, 100.0),
+}
+
+
+def _float_descriptor(text, unit, low, high, read_only=False):
+    return ParameterDescriptor(
+        description=f"{text} [{unit}]" if unit else text, read_only=read_only,
+        floating_point_range=[FloatingPointRange(from_value=float(low), to_value=float(high))])
+
+
+class ClothLodNode(Node):
+    """Runs a cloth scene, driven by grasp poses, publishing its mesh and statistics."""
+
+    def __init__(self, **kwargs):
+        super().__init__("cloth_lod_node", **kwargs)
+        string = ParameterDescriptor
+        self.declare_parameter("scene", "hang_two_corners", string(
+            description="built-in scene name or path to a scene YAML file", read_only=True))
+        self.declare_parameter("frame_id", "world", string(
+            description="frame of the cloth; grasp poses must use it", read_only=True))
+        self.declare_parameter("time_step", 0.0, _float_descriptor(
+            "simulation time step, 0 = the scene's", "s", 0.0, 1.0, read_only=True))
+        self.declare_parameter("publish_rate", 30.0, _float_descriptor(
+            "rate of cloth/markers, cloth/points, cloth/grid and cloth/lod_stats",
+            "Hz", 0.1, 1000.0))
+        self.declare_parameter("realtime", True, string(
+            description="pace steps to the clock (false: step as fast as possible)"))
+        self.declare_parameter("paused", False, string(description="start paused"))
+        self.declare_parameter("grid_resolution", 21, ParameterDescriptor(
+            description="points per side of the cloth/grid resampling", read_only=True,
+            integer_range=[IntegerRange(from_value=2, to_value=257, step=1)]))
+        self.declare_parameter("stale_pose_timeout", 1.0, _float_descriptor(
+            "reject grasp poses stamped older than this, 0 = never", "s", 0.0, 3600.0))
+        self.declare_parameter("colour_by", "level", string(
+            description="surface colours: 'level' or 'shading'"))
+        self.declare_parameter("wireframe", True, string(description="publish the wireframe"))
+        scene = load_scene(self.get_parameter("scene").value)
+        for name, (path, unit, low, high) in LIVE.items():
+            section, key = path.split(".")
+            value = float(getattr(getattr(scene, section), key))
+            self.declare_parameter(name, value, _float_descriptor(name, unit, low, high))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self.frame_id = self.get_parameter("frame_id").value
+        self.rejected = {"frame": 0, "not_finite": 0, "stale": 0}
+        self._build_sim()
+        reliable_latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.markers_pub = self.create_publisher(MarkerArray, "cloth/markers", reliable_latched)
+        self.points_pub = self.create_publisher(PointCloud2, "cloth/points", 10)
+        self.grid_pub = self.create_publisher(PointCloud2, "cloth/grid", 10)
+        self.stats_pub = self.create_publisher(DiagnosticArray, "cloth/lod_stats", 10)
+        for g in self.sim.grasps:
+            self.create_subscription(PoseStamped, f"grasp/{g.name}/pose",
+                                     lambda msg, name=g.name: self._on_pose(name, msg), 10)
+            self.create_service(SetBool, f"grasp/{g.name}/close",
+                                lambda req, res, name=g.name: self._on_close(name, req, res))
+        self.create_service(Trigger, "cloth/reset", self._on_reset)
+        self.create_service(Trigger, "cloth/step", self._on_step)
+        self.create_service(SetBool, "cloth/pause", self._on_pause)
+        self.paused = bool(self.get_parameter("paused").value)
+        self._last_publish = -math.inf
+        self._wall_start = time.monotonic()
+        self._sim_start = 0.0
+        period = self.sim.time_step if self.get_parameter("realtime").value else 1e-4
+        self.timer = self.create_timer(period, self._on_timer)
+        self.get_logger().info(
+            f"scene {self.sim.scene.name}: {self.sim.mesh.vertex_count} particles, "
+            f"grasps {[g.name for g in self.sim.grasps]}, h = {self.sim.time_step:.4g} s")
+
+    # -- simulator ---------------------------------------------------------
+    def _build_sim(self) -> None:
+        overrides = {path: self.get_parameter(name).value
+                     for name, (path, *_) in LIVE.items()}
+        if self.get_parameter("time_step").value > 0:
+            overrides["simulation.time_step"] = self.get_parameter("time_step").value
+        self.sim = ClothSim(load_scene(self.get_parameter("scene").value, overrides))
+        n = self.get_parameter("grid_resolution").value
+        us = np.linspace(0.0, self.sim.scene.cloth.width, n)
+        vs = np.linspace(0.0, self.sim.scene.cloth.height, n)
+        self.grid_uv = np.array([[u, v] for v in vs for u in us])
+        self._edges_key = None
+        self._marker_count = 0
+        self.error = None
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """Validate live changes as a whole scene; refuse with the reason, keep old values."""
+        changes = {LIVE[p.name][0]: p.value for p in params if p.name in LIVE}
+        if not changes:
+            return SetParametersResult(successful=True)
+        try:
+            from .config import scene_from_dict, scene_to_dict
+            data = scene_to_dict(self.sim.scene)
+            for path, value in changes.items():
+                section, key = path.split(".")
+                data[section][key] = value
+            scene = scene_from_dict(data)
+        except SceneError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.sim.scene = scene
+        self.sim.solver.material = scene.material
+        if self.sim.lod_policy is not None:
+            self.sim.lod_policy.config = scene.lod
+            self.sim.lod_policy.bend_stiffness = scene.material.bend_stiffness
+        return SetParametersResult(successful=True)
+
+    def _on_timer(self) -> None:
+        if self.paused or self.error is not None:
+            self._publish(force=False)
+            return
+        if self.get_parameter("realtime").value:
+            # Catch up with the wall clock, at most a few steps per tick.
+            behind = (time.monotonic() - self._wall_start) - (self.sim.time - self._sim_start)
+            steps = min(max(int(behind / self.sim.time_step), 0), 3)
+        else:
+            steps = 1
+        for _ in range(steps):
+            self._step_once()
+        self._publish(force=False)
+
+    def _step_once(self) -> bool:
+        try:
+            self.sim.step()
+            return True
+        except SimulationError as exc:
+            self.error = str(exc)
+            self.get_logger().error(f"simulation stopped: {exc}; call cloth/reset")
+            return False
+
+    # -- inputs --------------------------------------------------------------
+    def _on_pose(self, name: str, msg: PoseStamped) -> None:
+        reason = self._check_pose(msg)
+        if reason is not None:
+            self.rejected[reason] += 1
+            self.get_logger().warning(
+                f"grasp/{name}/pose rejected ({reason}); {sum(self.rejected.values())} "
+                "rejected so far", throttle_duration_sec=2.0)
+            return
+        p, q = msg.pose.position, msg.pose.orientation
+        self.sim.set_grasp_target(name, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+
+    def _check_pose(self, msg: PoseStamped) -> str | None:
+        if msg.header.frame_id not in ("", self.frame_id):
+            return "frame"
+        p, q = msg.pose.position, msg.pose.orientation
+        values = np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w])
+        if not np.all(np.isfinite(values)) or np.linalg.norm(values[3:]) < 1e-9:
+            return "not_finite"
+        timeout = self.get_parameter("stale_pose_timeout").value
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        if timeout > 0 and stamp > 0:
+            now = self.get_clock().now().nanoseconds * 1e-9
+            if now - stamp > timeout:
+                return "stale"
+        return None
+
+    def _on_close(self, name: str, request, response):
+        try:
+            (self.sim.close_grasp if request.data else self.sim.open_grasp)(name)
+            response.success = True
+            response.message = f"grasp {name} {'closed' if request.data else 'opened'}"
+        except (KeyError, ValueError) as exc:
+            response.success, response.message = False, str(exc)
+        return response
+
+    def _on_reset(self, request, response):
+        self._build_sim()
+        self._sim_start, self._wall_start = 0.0, time.monotonic()
+        response.success, response.message = True, "reset to the scene's initial state"
+        self._publish(force=True)
+        return response
+
+    def _on_step(self, request, response):
+        ok = self._step_once()
+        self._publish(force=True)
+        response.success = ok
+        response.message = f"t = {self.sim.time:.4f} s" if ok else self.error
+        return response
+
+    def _on_pause(self, request, response):
+        self.paused = bool(request.data)
+        if not self.paused:
+            self._sim_start, self._wall_start = self.sim.time, time.monotonic()
+        response.success, response.message = True, "paused" if self.paused else "running"
+        return response
+
+    # -- outputs -------------------------------------------------------------
+    def _publish(self, force: bool) -> None:
+        now = time.monotonic()
+        if not force and now - self._last_publish < 1.0 / self.get_parameter("publish_rate").value:
+            return
+        self._last_publish = now
+        sim = self.sim
+        stamp = self.get_clock().now().to_msg()
+        stamp_t = (stamp.sec, stamp.nanosec)
+        key = (id(sim.mesh), sim.mesh.triangle_count)
+        if key != self._edges_key:           # topology changed: recompute the wireframe edges
+            self._edges = unique_edges(sim.triangles, sim.triangle_levels)
+            self._edges_key = key
+        grasp_points = [g.position for g in sim.grasps if g.closed]
+        specs = cloth_markers(sim.positions, sim.triangles, sim.triangle_levels, sim.max_level,
+                              self.frame_id, stamp_t, grasp_points=np.array(grasp_points),
+                              colour_by=self.get_parameter("colour_by").value,
+                              wireframe=self.get_parameter("wireframe").value,
+                              edges=self._edges)
+        if len(specs) < self._marker_count:      # a marker went away: clear stale ones
+            specs = cloth_markers(sim.positions, sim.triangles, sim.triangle_levels,
+                                  sim.max_level, self.frame_id, stamp_t,
+                                  grasp_points=np.array(grasp_points),
+                                  colour_by=self.get_parameter("colour_by").value,
+                                  wireframe=self.get_parameter("wireframe").value,
+                                  edges=self._edges, delete_all_first=True)
+        self._marker_count = len([s for s in specs if s.action == 0])
+        self.markers_pub.publish(serialize_marker_array(specs))
+        self.points_pub.publish(serialize_point_cloud(sim.positions, self.frame_id, stamp_t))
+        n = self.get_parameter("grid_resolution").value
+        self.grid_pub.publish(serialize_point_cloud(sim.sample(self.grid_uv), self.frame_id,
+                                                    stamp_t, height=n))
+        self.stats_pub.publish(self._diagnostics(stamp))
+
+    def _diagnostics(self, stamp) -> DiagnosticArray:
+        sim = self.sim
+        status = DiagnosticStatus(name="cloth_lod: simulation", hardware_id=sim.scene.name)
+        last = sim.stats[-1] if sim.stats else None
+        wall = time.monotonic() - self._wall_start
+        values = {"sim_time_s": f"{sim.time:.4f}", "particles": str(sim.mesh.vertex_count),
+                  "triangles": str(sim.mesh.triangle_count),
+                  "triangles_per_level": " ".join(
+                      str(c) for c in np.bincount(sim.triangle_levels,
+                                                  minlength=sim.max_level + 1)),
+                  "paused": str(self.paused).lower(),
+                  "real_time_factor": f"{(sim.time - self._sim_start) / max(wall, 1e-9):.3f}",
+                  "rejected_poses": str(sum(self.rejected.values()))}
+        values.update({f"rejected_{k}": str(v) for k, v in self.rejected.items()})
+        if last is not None:
+            for f in dataclasses.fields(last):
+                if f.name not in ("triangles_per_level", "time"):
+                    values[f.name] = str(getattr(last, f.name))
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        if self.error is not None:
+            status.level, status.message = DiagnosticStatus.ERROR, self.error
+        elif last is not None and not last.converged:
+            status.level, status.message = DiagnosticStatus.WARN, "linear solve did not converge"
+        elif self.paused:
+            status.level, status.message = DiagnosticStatus.OK, "paused"
+        else:
+            status.level, status.message = DiagnosticStatus.OK, "running"
+        return DiagnosticArray(header=Header(stamp=stamp, frame_id=self.frame_id),
+                               status=[status])
+
+
+def main(args=None) -> None:
+    """Entry point (``cloth_lod_node``); Ctrl-C and SIGTERM end it with code 0."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ClothLodNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:
+        # A signal can shut the context down in the middle of a step or a
+        # publish; what that raises is part of a clean stop, anything else is not.
+        if rclpy.ok():
+            raise
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()
