@@ -17,6 +17,7 @@ Services: ``grasp/<name>/close`` (std_srvs/SetBool: true holds, false releases),
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import time
 
@@ -94,6 +95,7 @@ class ClothLodNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.frame_id = self.get_parameter("frame_id").value
+        _forward_library_logs(self.get_logger())
         self.rejected = {"frame": 0, "not_finite": 0, "stale": 0}
         self._build_sim()
         reliable_latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -301,6 +303,26 @@ class ClothLodNode(Node):
                                status=[status])
 
 
+class _RosLogHandler(logging.Handler):
+    """Send the simulator's Python log records (e.g. a grasp catching up with a
+    jumped target) to the node's ROS logger."""
+
+    def __init__(self, ros_logger):
+        super().__init__(level=logging.INFO)
+        self.ros_logger = ros_logger
+
+    def emit(self, record):
+        level = {logging.WARNING: "warning", logging.ERROR: "error"}.get(record.levelno, "info")
+        getattr(self.ros_logger, level)(record.getMessage())
+
+
+def _forward_library_logs(ros_logger) -> None:
+    library = logging.getLogger("cloth_lod_ros")
+    library.handlers = [h for h in library.handlers if not isinstance(h, _RosLogHandler)]
+    library.addHandler(_RosLogHandler(ros_logger))
+    library.propagate = False
+
+
 def main(args=None) -> None:
     """Entry point (``cloth_lod_node``); Ctrl-C and SIGTERM end it with code 0."""
     rclpy.init(args=args)
@@ -316,9 +338,12 @@ def main(args=None) -> None:
         if rclpy.ok():
             raise
     finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
+        except KeyboardInterrupt:       # a second Ctrl-C while closing: already stopping
+            pass
 
 
 if __name__ == "__main__":  # pragma: no cover
