@@ -73,7 +73,10 @@ class Sphere(Obstacle):
     def distance(self, x):
         d = x - self.centre
         r = np.linalg.norm(d, axis=1)
-        normal = np.where(r[:, None] > 0, d / np.maximum(r, 1e-300)[:, None], [0, 0, 1])
+        # At (or within rounding of) the centre any direction is nearest; a tiny
+        # |d| would also lose precision when squared, so fall back below 1e-12 R.
+        safe = r > 1e-12 * self.radius
+        normal = np.where(safe[:, None], d / np.where(safe, r, 1.0)[:, None], [0, 0, 1])
         return r - self.radius, normal
 
 
