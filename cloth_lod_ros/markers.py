@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["MarkerSpec", "serialize_marker_array", "marker_array_message",
-           "cloth_markers", "level_colours", "unique_edges", "serialize_point_cloud", "TRIANGLE_LIST", "LINE_LIST", "SPHERE_LIST",
+           "cloth_markers", "obstacle_markers", "level_colours", "unique_edges",
+           "serialize_point_cloud", "TRIANGLE_LIST", "LINE_LIST", "SPHERE_LIST",
            "CUBE", "SPHERE", "CYLINDER", "ADD", "DELETEALL"]
 
 # visualization_msgs/Marker constants (Jazzy).
@@ -224,6 +225,49 @@ def cloth_markers(positions: np.ndarray, triangles: np.ndarray, levels: np.ndarr
                                 scale=np.full(3, 0.03),
                                 color=np.array([0.85, 0.1, 0.2, 1.0]),
                                 points=np.asarray(grasp_points, float).reshape(-1, 3)))
+    return specs
+
+
+def _quaternion_from_z(axis: np.ndarray) -> np.ndarray:
+    """Unit quaternion [x, y, z, w] turning +z onto ``axis``."""
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    w = 1.0 + a[2]
+    if w < 1e-12:                                   # axis = -z: half turn about x
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    q = np.array([-a[1], a[0], 0.0, w])
+    return q / np.linalg.norm(q)
+
+
+def obstacle_markers(obstacles, frame_id: str, stamp: tuple = (0, 0),
+                     first_id: int = 10) -> list[MarkerSpec]:
+    """One marker per obstacle config (:class:`~cloth_lod_ros.config.ObstacleConfig`).
+
+    Planes are drawn as a thin 2 m square around their point; cylinders and discs
+    as CYLINDER, spheres as SPHERE, boxes as CUBE (rounding not drawn).
+    """
+    grey = np.array([0.55, 0.58, 0.62, 0.6])
+    specs = []
+    for k, o in enumerate(obstacles):
+        centre = np.asarray(o.centre, float)
+        if o.type == "plane":
+            q = _quaternion_from_z(o.normal)
+            normal = np.asarray(o.normal, float) / np.linalg.norm(o.normal)
+            spec = MarkerSpec(o.name, first_id + k, CUBE, frame_id, stamp,
+                              position=centre - 0.005 * normal, orientation=q,
+                              scale=np.array([2.0, 2.0, 0.01]), color=grey)
+        elif o.type == "sphere":
+            spec = MarkerSpec(o.name, first_id + k, SPHERE, frame_id, stamp, position=centre,
+                              scale=np.full(3, 2 * o.radius), color=grey)
+        elif o.type in ("cylinder", "disc"):
+            spec = MarkerSpec(o.name, first_id + k, CYLINDER, frame_id, stamp,
+                              position=centre, orientation=_quaternion_from_z(o.axis),
+                              scale=np.array([2 * o.radius, 2 * o.radius, 2 * o.half_height]),
+                              color=grey)
+        else:                                       # box
+            spec = MarkerSpec(o.name, first_id + k, CUBE, frame_id, stamp, position=centre,
+                              orientation=np.asarray(o.orientation, float),
+                              scale=2 * np.asarray(o.half_extents, float), color=grey)
+        specs.append(spec)
     return specs
 
 

@@ -36,7 +36,8 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 from .config import SceneError, load_scene
-from .markers import cloth_markers, serialize_marker_array, serialize_point_cloud, unique_edges
+from .markers import (cloth_markers, obstacle_markers, serialize_marker_array,
+                      serialize_point_cloud, unique_edges)
 from .sim import ClothSim, SimulationError
 
 __all__ = ["ClothLodNode", "main"]
@@ -265,6 +266,7 @@ class ClothLodNode(Node):
                                   wireframe=self.get_parameter("wireframe").value,
                                   edges=self._edges, delete_all_first=True)
         self._marker_count = len([s for s in specs if s.action == 0])
+        specs += obstacle_markers(sim.scene.obstacles, self.frame_id, stamp_t)
         self.markers_pub.publish(serialize_marker_array(specs))
         self.points_pub.publish(serialize_point_cloud(sim.positions, self.frame_id, stamp_t))
         n = self.get_parameter("grid_resolution").value

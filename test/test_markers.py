@@ -125,3 +125,24 @@ def test_point_cloud_bytes_encode_the_reference_message(height):
     np.testing.assert_allclose(decoded, points.astype(np.float32))
     with pytest.raises(ValueError):
         serialize_point_cloud(points, "world", height=5)
+
+
+def test_obstacle_markers_match_the_obstacles():
+    from scipy.spatial.transform import Rotation
+
+    from cloth_lod_ros.config import load_scene
+    from cloth_lod_ros.markers import CUBE, CYLINDER, SPHERE, obstacle_markers
+    scene = load_scene("drop_on_sphere")           # sphere + floor plane
+    disc = load_scene("drop_on_disc").obstacles[0]
+    specs = obstacle_markers(list(scene.obstacles) + [disc], "world")
+    msg = marker_array_message(specs)
+    ball, floor, table = msg.markers
+    assert ball.type == SPHERE and ball.scale.x == pytest.approx(0.5)
+    assert floor.type == CUBE and floor.pose.position.z == pytest.approx(-0.255)
+    assert table.type == CYLINDER and table.scale.z == pytest.approx(0.04)
+    assert len({m.id for m in msg.markers}) == 3
+    # A cylinder along x: the marker's +z must map onto the axis.
+    from cloth_lod_ros.config import ObstacleConfig
+    tilted = ObstacleConfig(type="cylinder", name="c", axis=(1.0, 0.0, 0.0))
+    q = obstacle_markers([tilted], "world")[0].orientation
+    np.testing.assert_allclose(Rotation.from_quat(q).apply([0, 0, 1]), [1, 0, 0], atol=1e-12)
