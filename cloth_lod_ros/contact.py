@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Obstacle", "Plane", "Sphere", "Cylinder", "Box", "make_obstacle",
-           "ContactSet", "find_contacts", "penetrations"]
+           "ContactSet", "nearest_surface", "find_contacts", "penetrations"]
 
 
 def _normalise(v: np.ndarray) -> np.ndarray:
@@ -199,6 +199,21 @@ class ContactSet:
                           np.concatenate([self.hold[keep], other.hold]))
 
 
+def nearest_surface(obstacles: list[Obstacle], x: np.ndarray):
+    """For points ``(m, 3)``: signed distance (m), outward normal and friction
+    coefficient of the nearest obstacle (the one with the smallest φ)."""
+    best = np.full(len(x), np.inf)
+    normal = np.zeros((len(x), 3))
+    mu = np.zeros(len(x))
+    for obstacle in obstacles:
+        phi, nrm = obstacle.distance(x)
+        closer = phi < best
+        best[closer] = phi[closer]
+        normal[closer] = nrm[closer]
+        mu[closer] = obstacle.friction
+    return best, normal, mu
+
+
 def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
                   exclude: np.ndarray | None = None, velocities: np.ndarray | None = None,
                   h: float = 0.0) -> ContactSet:
@@ -216,16 +231,7 @@ def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
         thickness: distance kept from surfaces, m.
         exclude: particle indices never constrained by contact (held ones).
     """
-    n = len(x)
-    best = np.full(n, np.inf)
-    normal = np.zeros((n, 3))
-    mu = np.zeros(n)
-    for obstacle in obstacles:
-        phi, nrm = obstacle.distance(x)
-        closer = phi < best
-        best[closer] = phi[closer]
-        normal[closer] = nrm[closer]
-        mu[closer] = obstacle.friction
+    best, normal, mu = nearest_surface(obstacles, x)
     approach = 0.0
     if velocities is not None and h > 0:
         approach = h * np.minimum(np.einsum("nd,nd->n", velocities, normal), 0.0)
@@ -250,16 +256,7 @@ def penetrations(obstacles: list[Obstacle], start: np.ndarray, end: np.ndarray,
         start, end: ``(n, 3)`` positions at the start of the step and as
             predicted by the solve, m.
     """
-    n = len(end)
-    best = np.full(n, np.inf)
-    normal = np.zeros((n, 3))
-    mu = np.zeros(n)
-    for obstacle in obstacles:
-        phi, nrm = obstacle.distance(end)
-        closer = phi < best
-        best[closer] = phi[closer]
-        normal[closer] = nrm[closer]
-        mu[closer] = obstacle.friction
+    best, normal, mu = nearest_surface(obstacles, end)
     inside = best < (1.0 - tolerance) * thickness
     if exclude is not None and len(exclude):
         inside[exclude] = False

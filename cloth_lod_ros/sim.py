@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import SceneConfig, load_scene
-from .contact import find_contacts, make_obstacle, penetrations
+from .contact import find_contacts, make_obstacle, nearest_surface, penetrations
 from .grasps import Grasp
 from .forces import Elements, elastic_energies, evaluate, precompute
 from .hierarchy import Hierarchy48
@@ -617,8 +617,7 @@ class ClothSim:
         Such a particle is a contact support and is not merged away."""
         ends = np.searchsorted(self.vertex_ids, self.hierarchy.vertex_edge[vertices])
         midpoints = 0.5 * (self.positions[ends[:, 0]] + self.positions[ends[:, 1]])
-        phi = np.min([o.distance(midpoints)[0] for o in self.obstacles], axis=0)
-        return phi < 0.5 * self.scene.contact.thickness
+        return nearest_surface(self.obstacles, midpoints)[0] < 0.5 * self.scene.contact.thickness
 
     def apply_mesh_operations(self, ops) -> None:
         """Apply :class:`~cloth_lod_ros.hierarchy.Split`/``Merge`` values (LOD on only).
@@ -679,13 +678,7 @@ class ClothSim:
         if not len(new):
             return
         thickness = self.scene.contact.thickness
-        x = h.x[new]
-        best = np.full(len(new), np.inf)
-        normal = np.zeros((len(new), 3))
-        for obstacle in self.obstacles:
-            phi, nrm = obstacle.distance(x)
-            closer = phi < best
-            best[closer], normal[closer] = phi[closer], nrm[closer]
+        best, normal, _ = nearest_surface(self.obstacles, h.x[new])
         inside = best < thickness
         h.x[new[inside]] += (thickness - best[inside])[:, None] * normal[inside]
 
