@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import threading
 import time
 
 import numpy as np
@@ -27,7 +28,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
-from rclpy.executors import ExternalShutdownException
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
@@ -97,6 +99,11 @@ class ClothLodNode(Node):
 
         self.frame_id = self.get_parameter("frame_id").value
         _forward_library_logs(self.get_logger())
+        # Inputs run beside the (possibly long) step: poses are checked when they
+        # arrive, not after the step, and the simulator is shared under a lock.
+        self._lock = threading.RLock()
+        self._inputs = MutuallyExclusiveCallbackGroup()
+        self._stepping = MutuallyExclusiveCallbackGroup()
         self.rejected = {"frame": 0, "not_finite": 0, "stale": 0}
         self._build_sim()
         reliable_latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -107,21 +114,35 @@ class ClothLodNode(Node):
         self.stats_pub = self.create_publisher(DiagnosticArray, "cloth/lod_stats", 10)
         for g in self.sim.grasps:
             self.create_subscription(PoseStamped, f"grasp/{g.name}/pose",
-                                     lambda msg, name=g.name: self._on_pose(name, msg), 10)
+                                     lambda msg, name=g.name: self._on_pose(name, msg), 10,
+                                     callback_group=self._inputs)
             self.create_service(SetBool, f"grasp/{g.name}/close",
-                                lambda req, res, name=g.name: self._on_close(name, req, res))
-        self.create_service(Trigger, "cloth/reset", self._on_reset)
-        self.create_service(Trigger, "cloth/step", self._on_step)
-        self.create_service(SetBool, "cloth/pause", self._on_pause)
+                                lambda req, res, name=g.name: self._locked(self._on_close,
+                                                                           name, req, res),
+                                callback_group=self._inputs)
+        self.create_service(Trigger, "cloth/reset",
+                            lambda req, res: self._locked(self._on_reset, req, res),
+                            callback_group=self._inputs)
+        self.create_service(Trigger, "cloth/step",
+                            lambda req, res: self._locked(self._on_step, req, res),
+                            callback_group=self._inputs)
+        self.create_service(SetBool, "cloth/pause",
+                            lambda req, res: self._locked(self._on_pause, req, res),
+                            callback_group=self._inputs)
         self.paused = bool(self.get_parameter("paused").value)
         self._last_publish = -math.inf
         self._wall_start = time.monotonic()
         self._sim_start = 0.0
         period = self.sim.time_step if self.get_parameter("realtime").value else 1e-4
-        self.timer = self.create_timer(period, self._on_timer)
+        self.timer = self.create_timer(period, lambda: self._locked(self._on_timer),
+                                       callback_group=self._stepping)
         self.get_logger().info(
             f"scene {self.sim.scene.name}: {self.sim.mesh.vertex_count} particles, "
             f"grasps {[g.name for g in self.sim.grasps]}, h = {self.sim.time_step:.4g} s")
+
+    def _locked(self, function, *args):
+        with self._lock:
+            return function(*args)
 
     # -- simulator ---------------------------------------------------------
     def _build_sim(self) -> None:
@@ -143,6 +164,10 @@ class ClothLodNode(Node):
         changes = {LIVE[p.name][0]: p.value for p in params if p.name in LIVE}
         if not changes:
             return SetParametersResult(successful=True)
+        with self._lock:
+            return self._apply_live(changes)
+
+    def _apply_live(self, changes: dict) -> SetParametersResult:
         try:
             from .config import scene_from_dict, scene_to_dict
             data = scene_to_dict(self.sim.scene)
@@ -184,6 +209,7 @@ class ClothLodNode(Node):
 
     # -- inputs --------------------------------------------------------------
     def _on_pose(self, name: str, msg: PoseStamped) -> None:
+        """Check a pose when it arrives (stamps are judged now, not after a step)."""
         reason = self._check_pose(msg)
         if reason is not None:
             self.rejected[reason] += 1
@@ -192,7 +218,8 @@ class ClothLodNode(Node):
                 "rejected so far", throttle_duration_sec=2.0)
             return
         p, q = msg.pose.position, msg.pose.orientation
-        self.sim.set_grasp_target(name, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+        with self._lock:
+            self.sim.set_grasp_target(name, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
 
     def _check_pose(self, msg: PoseStamped) -> str | None:
         if msg.header.frame_id not in ("", self.frame_id):
@@ -331,7 +358,10 @@ def main(args=None) -> None:
     node = None
     try:
         node = ClothLodNode()
-        rclpy.spin(node)
+        # Two threads: one steps and publishes, the other takes poses and services.
+        executor = MultiThreadedExecutor(num_threads=2)
+        executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
