@@ -75,8 +75,11 @@ def compare_adaptive_uniform(scene_name: str, level: int | None = None,
                              duration: float | None = None,
                              overrides: list[str] | None = None,
                              times: list[float] | None = None,
-                             grid: int = 21) -> dict:
-    """Run a scene adaptively (max level ``level``) and uniformly at that level.
+                             grid: int = 21,
+                             candidate: list[str] | None = None,
+                             reference: list[str] | None = None) -> dict:
+    """Run a scene twice and compare: by default adaptive (max level ``level``)
+    against uniform at that level.
 
     Args:
         scene_name: built-in scene or YAML path.
@@ -85,6 +88,10 @@ def compare_adaptive_uniform(scene_name: str, level: int | None = None,
         overrides: extra ``key=value`` overrides for both runs.
         times: sample times, s (default: quarter points and the end).
         grid: the (u, v) sample grid is ``grid × grid`` points over the cloth.
+        candidate, reference: overrides for one run only, applied after the
+            defaults (``lod.enabled=true`` and ``lod.enabled=false``), e.g.
+            ``candidate=["lod.enabled=false", "cloth.level=4"]`` compares a
+            coarser uniform mesh with the reference.
 
     Returns:
         A JSON-ready dict: both runs' summaries, the speed-up, and per time the
@@ -95,19 +102,19 @@ def compare_adaptive_uniform(scene_name: str, level: int | None = None,
         base.append(f"cloth.level={level}")
     if duration is not None:
         base.append(f"simulation.duration={duration}")
-    adaptive_scene = load_scene(scene_name, base + ["lod.enabled=true"])
-    uniform_scene = load_scene(scene_name, base + ["lod.enabled=false"])
+    adaptive_scene = load_scene(scene_name, base + ["lod.enabled=true"] + list(candidate or []))
+    uniform_scene = load_scene(scene_name, base + ["lod.enabled=false"] + list(reference or []))
     sim_time = adaptive_scene.simulation.duration
     h = adaptive_scene.simulation.time_step
     if times is None:
         times = [sim_time / 4, sim_time / 2, sim_time]
     times = [round(t / h) * h for t in times if 0 < t <= sim_time + 1e-12]
-    cloth = adaptive_scene.cloth
+    cloth = uniform_scene.cloth
     us = np.linspace(0.0, cloth.width, grid)
     vs = np.linspace(0.0, cloth.height, grid)
     points = np.array([[u, v] for v in vs for u in us])
-    uniform = _run(uniform_scene, points, times, "uniform")
-    adaptive = _run(adaptive_scene, points, times, "adaptive")
+    uniform = _run(uniform_scene, points, times, "reference" if reference else "uniform")
+    adaptive = _run(adaptive_scene, points, times, "candidate" if candidate else "adaptive")
     side = max(cloth.width, cloth.height)
     errors = []
     for t in times:
@@ -117,6 +124,7 @@ def compare_adaptive_uniform(scene_name: str, level: int | None = None,
     strip = lambda r: {k: v for k, v in asdict(r).items() if k != "samples"}  # noqa: E731
     return dict(
         scene=adaptive_scene.name, level=cloth.level, time_step=h, duration=sim_time,
+        candidate_overrides=list(candidate or []), reference_overrides=list(reference or []),
         sample_points=len(points), threads=os.environ.get("OMP_NUM_THREADS", "unset"),
         uniform=strip(uniform), adaptive=strip(adaptive),
         speedup=uniform.mean_step_ms / adaptive.mean_step_ms, errors=errors)
@@ -139,6 +147,6 @@ def format_comparison(result: dict) -> str:
             f"{r['splits']:7d} {r['merges']:7d}")
     lines.append(f"  speed-up (mean step time): {result['speedup']:.2f}x")
     for e in result["errors"]:
-        lines.append(f"  t = {e['time']:5.2f} s: adaptive vs uniform RMS {1e3 * e['rms_m']:.2f} mm "
+        lines.append(f"  t = {e['time']:5.2f} s: {a['label']} vs {u['label']} RMS {1e3 * e['rms_m']:.2f} mm "
                      f"({100 * e['rms_fraction']:.2f} % of side), max {1e3 * e['max_m']:.2f} mm")
     return "\n".join(lines)

@@ -153,7 +153,9 @@ def _cmd_compare(args) -> int:
     import json
     from .benchmark import compare_adaptive_uniform, format_comparison
     result = compare_adaptive_uniform(args.scene, level=args.level, duration=args.duration,
-                                      overrides=args.set, grid=args.grid)
+                                      overrides=args.set, grid=args.grid,
+                                      candidate=args.candidate_set,
+                                      reference=args.reference_set)
     print(format_comparison(result))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
@@ -193,6 +195,10 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--duration", type=float, help="simulated seconds")
     compare.add_argument("--set", action="append", metavar="KEY=VALUE",
                          help="override a scene field in both runs (repeatable)")
+    compare.add_argument("--candidate-set", action="append", metavar="KEY=VALUE",
+                         help="override for the compared run only (default run: LOD on)")
+    compare.add_argument("--reference-set", action="append", metavar="KEY=VALUE",
+                         help="override for the reference run only (default run: LOD off)")
     compare.add_argument("--grid", type=int, default=21,
                          help="sample grid points per side (default 21)")
     compare.add_argument("--json", help="also write the result as JSON to this path")

@@ -300,3 +300,33 @@ def serialize_point_cloud(points: np.ndarray, frame_id: str, stamp: tuple = (0, 
     w.array(pts.view(np.uint8).reshape(-1), np.uint8, 1)   # data
     w.prim("?", bool(np.all(np.isfinite(pts))))            # is_dense
     return w.getvalue()
+
+
+def _benchmark(levels=(6, 8), repeats: int = 10) -> None:
+    """Print marker and point-cloud build times (``python -m cloth_lod_ros.markers``)."""
+    import time
+
+    from .mesh48 import base_mesh, refine_uniform
+    for level in levels:
+        mesh = refine_uniform(base_mesh(1.0, 1.0, 4, 4), level)
+        x = np.column_stack([mesh.uv, 0.1 * np.sin(3 * mesh.uv[:, 0])])
+        start = time.perf_counter()
+        for _ in range(repeats):
+            edges = unique_edges(mesh.triangles, mesh.levels)
+        edge_ms = 1e3 * (time.perf_counter() - start) / repeats
+        start = time.perf_counter()
+        for _ in range(repeats):
+            raw = serialize_marker_array(cloth_markers(x, mesh.triangles, mesh.levels, level,
+                                                       "world", edges=edges))
+        marker_ms = 1e3 * (time.perf_counter() - start) / repeats
+        start = time.perf_counter()
+        for _ in range(repeats):
+            cloud = serialize_point_cloud(x, "world")
+        cloud_ms = 1e3 * (time.perf_counter() - start) / repeats
+        print(f"level {level}: {mesh.triangle_count} triangles: markers {marker_ms:.1f} ms "
+              f"({len(raw) / 1e6:.2f} MB), wireframe edges on a topology change "
+              f"{edge_ms:.1f} ms, points {cloud_ms:.2f} ms ({len(cloud) / 1e3:.1f} kB)")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    _benchmark()

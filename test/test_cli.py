@@ -290,3 +290,18 @@ def test_compare_reports_speed_and_error(tmp_path, capsys):
         assert e["rms_fraction"] == pytest.approx(e["rms_m"])       # 1 m cloth
     assert result["speedup"] > 0
     assert "speed-up" in capsys.readouterr().out
+
+
+def test_compare_any_two_configurations(tmp_path):
+    import json
+    out = tmp_path / "c.json"
+    code = cli.main(["compare", "hang_two_corners", "--level", "3", "--duration", "0.25",
+                     "--grid", "5", "--candidate-set", "lod.enabled=false",
+                     "--candidate-set", "cloth.level=2", "--reference-set",
+                     "solver.method=direct", "--json", str(out)])
+    assert code == 0
+    result = json.loads(out.read_text())
+    assert result["adaptive"]["label"] == "candidate" and result["uniform"]["label"] == "reference"
+    assert result["adaptive"]["max_triangles"] == 128 and result["uniform"]["max_triangles"] == 256
+    assert result["uniform"]["cg_iterations_mean"] == 0.0          # LU reference
+    assert all(e["rms_m"] > 0 for e in result["errors"])             # coarser mesh differs
