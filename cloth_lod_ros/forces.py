@@ -167,7 +167,8 @@ class Evaluation:
             ``−(stiffness_weight ∂f/∂x + damping_weight ∂f/∂v)`` (row ``3·v_i + a``,
             column ``3·v_j + b``), or ``None``.
         hinge_blocks: ``(h, 4, 3, 4, 3)`` same layout for hinges, or ``None``.
-        hinge_angle: ``(h,)`` θ in rad; ``hinge_rate``: ``(h,)`` dθ/dt in rad/s.
+        hinge_angle: ``(h,)`` θ in rad; ``hinge_gradient``: ``(h, 4, 3)`` ∂θ/∂x
+            in 1/m (the LOD criterion reuses both).
     """
 
     force: np.ndarray
@@ -179,7 +180,7 @@ class Evaluation:
     triangle_blocks: np.ndarray | None
     hinge_blocks: np.ndarray | None
     hinge_angle: np.ndarray
-    hinge_rate: np.ndarray
+    hinge_gradient: np.ndarray
 
 
 def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
@@ -294,7 +295,7 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
         max_strain=float(strain.max()) if len(strain) else 0.0,
         stiffness_times_velocity=kv,
         triangle_blocks=tri_blocks, hinge_blocks=hinge_blocks,
-        hinge_angle=theta, hinge_rate=theta_dot)
+        hinge_angle=theta, hinge_gradient=grad_b)
 
 
 def elastic_energies(elements: Elements, material, x: np.ndarray) -> dict:

@@ -60,16 +60,21 @@ class HingeMeasures:
 
 
 def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
-                   v: np.ndarray) -> HingeMeasures:
+                   v: np.ndarray, evaluation=None) -> HingeMeasures:
     """Evaluate the criterion on every hinge (vectorised).
 
-    The heights come from the angle gradient: ``|∂θ/∂o_k| = 1/h_k``.
+    The heights come from the angle gradient: ``|∂θ/∂o_k| = 1/h_k``.  With an
+    ``evaluation`` of the same state (:func:`cloth_lod_ros.forces.evaluate`),
+    its hinge angles and gradients are reused instead of recomputed.
     """
     hv = elements.hinge_vertices
     if len(hv) == 0:
         empty = np.zeros(0)
         return HingeMeasures(empty, empty, empty)
-    theta, grad = hinge_angles(x, hv, with_gradient=True)
+    if evaluation is not None:
+        theta, grad = evaluation.hinge_angle, evaluation.hinge_gradient
+    else:
+        theta, grad = hinge_angles(x, hv, with_gradient=True)
     grad_norm = np.linalg.norm(grad, axis=2)                  # (h, 4)
     height = 0.5 * (1.0 / grad_norm[:, 2] + 1.0 / grad_norm[:, 3])
     rate = np.einsum("hkd,hkd->h", grad, v[hv])
@@ -100,7 +105,8 @@ class LodPolicy:
     def decide(self, hierarchy: Hierarchy48, elements: Elements, vertex_ids: np.ndarray,
                triangle_ids: np.ndarray, x: np.ndarray, v: np.ndarray, time: float,
                held: np.ndarray, detail_points: np.ndarray | None = None,
-               in_contact: np.ndarray | None = None, supported=None) -> LodDecision:
+               in_contact: np.ndarray | None = None, supported=None,
+               evaluation=None) -> LodDecision:
         """Choose operations for the active mesh described by the compact arrays.
 
         Args:
@@ -117,9 +123,11 @@ class LodPolicy:
             supported: callable(pool vertex ids) -> bool mask of split particles
                 an obstacle is holding up (merging them would sink the coarse
                 edge into it); those are not merged.
+            evaluation: the force evaluation of this state, to reuse its hinge
+                angles and gradients.
         """
         cfg = self.config
-        measures = hinge_measures(elements, self.bend_stiffness, x, v)
+        measures = hinge_measures(elements, self.bend_stiffness, x, v, evaluation)
         hinge_tris = elements.hinge_triangles
         # Refine: both triangles of each over-curved hinge, most curved first.
         over = np.flatnonzero(measures.deviation > cfg.refine_threshold)

@@ -165,14 +165,38 @@ class ImplicitEulerSolver:
         self.gravity = np.asarray(gravity, dtype=float)
         self._pattern: SparsePattern | None = None
         self._previous_dv: np.ndarray | None = None
+        self._prepared = None
 
     def reset_topology(self, elements: Elements | None = None) -> None:
         """Forget per-topology caches; with ``elements``, build the new pattern now."""
         self._pattern = None
         self._previous_dv = None
+        self._prepared = None
         if elements is not None:
             self._pattern = SparsePattern(elements.vertex_count,
                                           [elements.triangles, elements.hinge_vertices])
+
+    def prepare(self, elements: Elements, state: ClothState, h: float):
+        """Forces, energies and system blocks at ``state`` (cached).
+
+        The LOD criterion reads the hinge angles and gradients from this same
+        evaluation, and a contact re-solve repeats the step from the same
+        state, so it is computed once per (topology, state).  Returns
+        ``(evaluation, milliseconds it took)``.
+        """
+        cached = self._prepared
+        if (cached is not None and cached[0] is elements and cached[1] == h
+                and cached[6] is self.material          # the node can change it live
+                and np.array_equal(cached[2], state.positions)
+                and np.array_equal(cached[3], state.velocities)):
+            return cached[4], cached[5]
+        start = _time.perf_counter()
+        ev = evaluate(elements, self.material, state.positions, state.velocities,
+                      stiffness_weight=h * h, damping_weight=h)
+        ms = 1e3 * (_time.perf_counter() - start)
+        self._prepared = (elements, h, state.positions.copy(), state.velocities.copy(), ev, ms,
+                          self.material)
+        return ev, ms
 
     def step(self, elements: Elements, masses: np.ndarray, state: ClothState,
              constraints_targets: tuple[np.ndarray, np.ndarray], h: float,
@@ -197,11 +221,11 @@ class ImplicitEulerSolver:
         """
         mat = self.material
         x, v = state.positions, state.velocities
-        t0 = _time.perf_counter()
         if self._pattern is None:
             self._pattern = SparsePattern(elements.vertex_count,
                                           [elements.triangles, elements.hinge_vertices])
-        ev = evaluate(elements, mat, x, v, stiffness_weight=h * h, damping_weight=h)
+        ev, evaluate_ms = self.prepare(elements, state, h)
+        t0 = _time.perf_counter() - 1e-3 * evaluate_ms     # force_ms includes the evaluation
         drag = mat.air_drag
         force = ev.force + masses[:, None] * (self.gravity - drag * v)
         rhs = h * (force + h * ev.stiffness_times_velocity)
@@ -536,8 +560,11 @@ class ClothSim:
         refines = merges = 0
         lod_ms = 0.0
         if self.hierarchy is not None and len(self.stats) % self.scene.lod.check_interval == 0:
-            refines, merges = self.adapt()
-            lod_ms = 1e3 * (_time.perf_counter() - start)
+            lod_start = _time.perf_counter()
+            evaluation, evaluate_ms = self.solver.prepare(self.elements, self.state, h)
+            refines, merges = self.adapt(evaluation)
+            # The evaluation is the physics' own (reported in force_ms), not LOD's.
+            lod_ms = 1e3 * (_time.perf_counter() - lod_start) - evaluate_ms
         for g in self.grasps:
             if g.closed:
                 g.advance(next_time, h)
@@ -640,12 +667,15 @@ class ClothSim:
             self._adopt_hierarchy()
         return ops
 
-    def adapt(self) -> tuple[int, int]:
+    def adapt(self, evaluation=None) -> tuple[int, int]:
         """Evaluate the LOD criterion on the current state and refine/simplify now.
 
-        ``step()`` calls this every ``lod.check_interval`` steps.  Returns
-        ``(splits, merges)`` performed.
+        ``step()`` calls this every ``lod.check_interval`` steps, passing the
+        step's own force evaluation (its hinge angles and gradients are what
+        the criterion needs).  Returns ``(splits, merges)`` performed.
         """
+        if evaluation is None:
+            evaluation, _ = self.solver.prepare(self.elements, self.state, self.time_step)
         h, time = self.hierarchy, self.state.time
         held_nodes = self._held_nodes()
         detail_points = np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
@@ -657,7 +687,8 @@ class ClothSim:
             h, self.elements, self.vertex_ids, self.triangle_ids, self.state.positions,
             self.state.velocities, time, held_nodes, detail_points=detail_points,
             in_contact=in_contact,
-            supported=self._merge_would_sink if self.obstacles else None)
+            supported=self._merge_would_sink if self.obstacles else None,
+            evaluation=evaluation)
         if not decision.refine and not decision.merge:
             return 0, 0
         self._sync_hierarchy()

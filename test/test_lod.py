@@ -248,3 +248,25 @@ def test_split_then_merge_leaves_the_simulation_state_unchanged():
     for a, b in zip(before, after):
         np.testing.assert_array_equal(a, b)
     assert isinstance(ops[-1], Split)
+
+
+def test_criterion_reuses_the_force_evaluation_exactly():
+    """The step hands its own force evaluation to the criterion: same numbers."""
+    from cloth_lod_ros.forces import evaluate
+    sim = ClothSim(load_scene("hang_two_corners", ["cloth.level=4"]))
+    for _ in range(20):
+        sim.step()
+    x, v = sim.positions, sim.velocities
+    ev = evaluate(sim.elements, sim.scene.material, x, v, 1.0, 1.0)
+    fresh = hinge_measures(sim.elements, 1e-3, x, v)
+    reused = hinge_measures(sim.elements, 1e-3, x, v, ev)
+    for a, b in zip((fresh.deviation, fresh.rate, fresh.bend_force),
+                    (reused.deviation, reused.rate, reused.bend_force)):
+        np.testing.assert_array_equal(a, b)
+    assert fresh.deviation.max() > 0
+    # The solver's cache is keyed on the state, not on the object holding it.
+    first, _ = sim.solver.prepare(sim.elements, sim.state, sim.time_step)
+    sim.state.positions[0, 2] += 0.01
+    second, _ = sim.solver.prepare(sim.elements, sim.state, sim.time_step)
+    assert second is not first
+    assert sim.solver.prepare(sim.elements, sim.state, sim.time_step)[0] is second
