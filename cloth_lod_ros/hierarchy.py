@@ -113,7 +113,6 @@ class Hierarchy48:
         self.tri[:t] = base.triangles
         self._edges: dict[tuple[int, int], list[int]] = {}
         self.midpoint: dict[tuple[int, int], int] = {}
-        self.diamond: dict[tuple[int, int], tuple[int, ...]] = {}
         for k in range(t):
             self._activate(k, 0.0)
         self.version = 0            # bumped on every topology change
@@ -206,6 +205,14 @@ class Hierarchy48:
                         height=self.height)
         return mesh, vids, tids
 
+    def _parents(self, vertex: int) -> tuple[int, ...]:
+        return tuple(int(t) for t in self.vertex_parents[vertex] if t >= 0)
+
+    @property
+    def diamond(self) -> dict[tuple[int, int], tuple[int, ...]]:
+        """Split edges and the one or two triangles each split (derived view)."""
+        return {edge: self._parents(m) for edge, m in self.midpoint.items()}
+
     def split_vertices(self) -> tuple[np.ndarray, np.ndarray]:
         """Particles made by a split whose merge is valid now (vectorised).
 
@@ -275,13 +282,12 @@ class Hierarchy48:
                 self._activate(kid, time)
             self.children[t] = kids
         self.midpoint[edge] = m
-        self.diamond[edge] = tuple(tris)
 
     def _merge(self, edge: tuple[int, int], time: float) -> None:
         edge = _key(*edge)
-        if edge not in self.diamond:
+        if edge not in self.midpoint:
             raise MeshError(f"cannot merge {edge}: it is not split")
-        parents = self.diamond[edge]
+        parents = self._parents(self.midpoint[edge])
         kids = self.children[list(parents)].ravel()
         if not self.tri_active[kids].all():
             raise MeshError(f"cannot merge {edge}: its children are refined further")
@@ -308,7 +314,6 @@ class Hierarchy48:
         self.v[m] = 0.0
         self._free_vertices.append(m)
         del self.midpoint[edge]
-        del self.diamond[edge]
 
     def refine(self, t: int, time: float = 0.0) -> list[Split]:
         """Bisect active triangle ``t`` (paper's ``Subdivide48``), forcing splits.

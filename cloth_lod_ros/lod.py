@@ -195,10 +195,11 @@ class LodPolicy:
             splits += len(hierarchy.refine(int(t), time))
         merges = 0
         for edge in decision.merge:
-            parents = hierarchy.diamond.get(edge)
-            if parents is None:
+            m = hierarchy.midpoint.get(edge)
+            if m is None:
                 continue
-            if hierarchy.tri_active[hierarchy.children[list(parents)]].all():
+            parents = [t for t in hierarchy.vertex_parents[m] if t >= 0]
+            if hierarchy.tri_active[hierarchy.children[parents]].all():
                 hierarchy.apply(Merge(edge), time)
                 merges += 1
         return splits, merges

@@ -38,8 +38,8 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 from .config import SceneError, load_scene
-from .markers import (cloth_markers, obstacle_markers, serialize_marker_array,
-                      serialize_point_cloud, unique_edges)
+from .markers import (CUBE, DELETEALL, MarkerSpec, cloth_markers, obstacle_markers,
+                      serialize_marker_array, serialize_point_cloud, unique_edges)
 from .sim import ClothSim, SimulationError
 
 __all__ = ["ClothLodNode", "main"]
@@ -285,14 +285,10 @@ class ClothLodNode(Node):
                               colour_by=self.get_parameter("colour_by").value,
                               wireframe=self.get_parameter("wireframe").value,
                               edges=self._edges)
-        if len(specs) < self._marker_count:      # a marker went away: clear stale ones
-            specs = cloth_markers(sim.positions, sim.triangles, sim.triangle_levels,
-                                  sim.max_level, self.frame_id, stamp_t,
-                                  grasp_points=np.array(grasp_points),
-                                  colour_by=self.get_parameter("colour_by").value,
-                                  wireframe=self.get_parameter("wireframe").value,
-                                  edges=self._edges, delete_all_first=True)
-        self._marker_count = len([s for s in specs if s.action == 0])
+        count = len(specs)
+        if count < self._marker_count:            # a marker went away: clear stale ones
+            specs.insert(0, MarkerSpec("", 0, CUBE, self.frame_id, stamp_t, action=DELETEALL))
+        self._marker_count = count
         specs += obstacle_markers(sim.scene.obstacles, self.frame_id, stamp_t)
         self.markers_pub.publish(serialize_marker_array(specs))
         self.points_pub.publish(serialize_point_cloud(sim.positions, self.frame_id, stamp_t))

@@ -48,7 +48,6 @@ class SparsePattern:
         self.block_count = len(unique_keys)
         self.indices = (unique_keys % n).astype(np.int32)
         self.indptr = np.searchsorted(unique_keys // n, np.arange(n + 1)).astype(np.int32)
-        self.block_rows = np.repeat(np.arange(n), np.diff(self.indptr))
         self.shape = (3 * n, 3 * n)
         within = (3 * np.arange(3)[:, None] + np.arange(3)[None, :])     # (a, b)
         self._slots = []

@@ -267,7 +267,11 @@ def test_markers_seen_by_another_process_describe_a_valid_mesh(running):
     assert len(surface.points) % 3 == 0 and len(surface.points) > 0
     pts = np.array([[p.x, p.y, p.z] for p in surface.points])
     assert np.all(np.isfinite(pts))
-    assert len(surface.points) == 3 * int(node.stat("triangles")) or len(node.stats) > 1
+    # The statistics published with these markers (same stamp) count the same mesh.
+    same = [s for s in node.stats if s.header.stamp == surface.header.stamp]
+    assert same, "no lod_stats with the markers' stamp"
+    triangles = {kv.key: kv.value for kv in same[-1].status[0].values}["triangles"]
+    assert len(surface.points) == 3 * int(triangles)
     assert all(m.header.frame_id == "world" for m in msg.markers)
 
 
