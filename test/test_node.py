@@ -268,8 +268,11 @@ def test_markers_seen_by_another_process_describe_a_valid_mesh(running):
     pts = np.array([[p.x, p.y, p.z] for p in surface.points])
     assert np.all(np.isfinite(pts))
     # The statistics published with these markers (same stamp) count the same mesh.
-    same = [s for s in node.stats if s.header.stamp == surface.header.stamp]
-    assert same, "no lod_stats with the markers' stamp"
+    def matching():
+        return [s for s in node.stats if s.header.stamp == surface.header.stamp]
+    # lod_stats is published just after the markers: wait for its copy.
+    assert node.spin_until(lambda: matching(), 5.0), "no lod_stats with the markers' stamp"
+    same = matching()
     triangles = {kv.key: kv.value for kv in same[-1].status[0].values}["triangles"]
     assert len(surface.points) == 3 * int(triangles)
     assert all(m.header.frame_id == "world" for m in msg.markers)
