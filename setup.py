@@ -13,6 +13,10 @@ ROS_WHEELS = [
     "ros-jazzy-rclpy[fastrtps]==7.1.6",
     "ros-jazzy-common-interfaces==5.3.6",
 ]
+# Recording sessions (rosbag2 MCAP bags); mcap brings zstd and lz4.
+BAG = ["mcap>=1.2"]
+# Independent readers used by the tests to check our bags.
+BAG_READERS = ["mcap-ros2-support>=0.5", "rosbags>=0.10"]
 
 setup(
     name=PACKAGE,
@@ -29,8 +33,8 @@ setup(
     install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6",
                       "matplotlib>=3.6"],
     extras_require={
-        "ros": ROS_WHEELS,
-        "test": ROS_WHEELS + ["pytest>=7", "hypothesis>=6"],
+        "ros": ROS_WHEELS + BAG,
+        "test": ROS_WHEELS + BAG + BAG_READERS + ["pytest>=7", "hypothesis>=6"],
     },
     zip_safe=True,
     maintainer="cloth_lod_ros maintainers",

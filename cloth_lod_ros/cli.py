@@ -4,15 +4,23 @@
                         [--out state.npz] [--png picture.png] [--frames N] [--quiet]
     cloth-lod compare SCENE [--level L] [--duration S] [--set key=value ...] [--json F]
     cloth-lod scenes
+    cloth-lod bench [SCENE] [--quick] ...        speed against error (cloth_lod_ros.bench)
+    cloth-lod stress [--quick] ...               hard-case stability suite (cloth_lod_ros.stress)
+    cloth-lod analyze BAG [--png F] [--json [F]] summary and plots of a recorded session
+    cloth-lod replay BAG [--json [F]]            re-simulate a recording and compare
+    cloth-lod recover BAG [--out DIR]            rebuild an interrupted recording
+    cloth-lod play BAG [--rate R] [--loop] [--topics T ...]   republish (a ROS node)
 
 ``run`` simulates headless and writes the final state (x, v, uv, mass,
 triangles, time) and the per-step statistics to an ``.npz`` file, and a PNG of
-the final cloth.
+the final cloth; with ``--bag DIR`` it also records the session as the node does.
+The bag commands need the ROS wheels (``pip install ".[ros]"``).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 import time
@@ -20,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .bag import BagError
 from .config import SceneError, builtin_scene_names, load_scene
 from .sim import ClothSim, SimulationError, StepStats
 
@@ -119,16 +128,27 @@ def _cmd_run(args) -> int:
             frames.append(_frame(s))
 
     start = time.perf_counter()
+    recording = _HeadlessRecording(args, sim, overrides, start) if args.bag else None
+    callback = progress if recording is None else recording.wrap(progress)
     try:
-        sim.run(scene.simulation.duration, callback=progress)
+        sim.run(scene.simulation.duration, callback=callback)
     except SimulationError as exc:
         print(f"cloth-lod: simulation stopped: {exc}", file=sys.stderr)
         save_state(out, sim)
         return 3
+    finally:
+        if recording is not None:
+            recording.close()
     wall = time.perf_counter() - start
     print(_summary(sim, wall))
     save_state(out, sim)
     print(f"  wrote {out}")
+    if recording is not None:
+        if recording.recorder.failed:
+            print(f"cloth-lod: recording failed: {recording.recorder.failed}", file=sys.stderr)
+            return 4
+        print(f"  wrote {recording.recorder.path} ({recording.recorder.writer.message_count} "
+              "messages)")
     if not args.no_png:
         from .plotting import render_frames
         frames.append(_frame(sim, f"{scene.name}, "))
@@ -147,6 +167,47 @@ def _cmd_run(args) -> int:
                                title=f"{scene.name}: adaptive mesh over time")
             print(f"  wrote {levels_png}\n  wrote {history_png}")
     return 0
+
+
+class _HeadlessRecording:
+    """``run --bag``: the node's output frames at ``--bag-rate`` Hz of simulated
+    time, stamped start + simulated time (so ``play`` shows physical speed)."""
+
+    def __init__(self, args, sim: ClothSim, overrides: list, wall_start: float):
+        from .session import FrameBuilder, SessionRecorder
+        self.sim = sim
+        self.recorder = SessionRecorder(args.bag, "/", args.bag_compression,
+                                        grasp_names=[g.name for g in sim.grasps])
+        self.frames = FrameBuilder("world", 21)
+        self.interval = 1.0 / args.bag_rate
+        self.start_ns = time.time_ns()
+        self.wall_start = wall_start
+        self.next_time = 0.0
+        self.recorder.start(sim, {"command": "cloth-lod run", "scene": args.scene,
+                                  "overrides": overrides}, 21, self.start_ns)
+        self._record()
+
+    def _record(self) -> None:
+        sim = self.sim
+        wall = time.perf_counter() - self.wall_start
+        t_ns = self.start_ns + int(round(sim.time * 1e9))
+        values = {"paused": "false", "wall_time_s": f"{wall:.6f}",
+                  "real_time_factor": f"{sim.time / max(wall, 1e-9):.3f}",
+                  "recording": f"on: {self.recorder.path}"}
+        self.recorder.record_frame(self.frames.build(sim, divmod(t_ns, 10**9), values), t_ns)
+        self.next_time += self.interval
+
+    def wrap(self, progress):
+        def callback(sim, stats):
+            progress(sim, stats)
+            if sim.time >= self.next_time - 1e-9:
+                self._record()
+        return callback
+
+    def close(self) -> None:
+        if self.sim.stats and self.sim.stats[-1].step_index + 1 != self.frames._next_step:
+            self._record()                      # the final state, if not just recorded
+        self.recorder.close()
 
 
 def _cmd_compare(args) -> int:
@@ -171,6 +232,59 @@ def _cmd_scenes(args) -> int:
     return 0
 
 
+def _write_json(result: dict, target: str) -> None:
+    import json
+    text = json.dumps(result, indent=2)
+    if target == "-":
+        print(text)
+    else:
+        Path(target).parent.mkdir(parents=True, exist_ok=True)
+        Path(target).write_text(text)
+        print(f"  wrote {target}")
+
+
+def _cmd_analyze(args) -> int:
+    from .bagtools import analyze, format_analysis, plot_analysis
+    result = analyze(args.bag)
+    if args.json == "-":
+        result.pop("series")
+        _write_json(result, "-")
+        return 0
+    print(format_analysis(result))
+    if not args.no_png:
+        bag = Path(args.bag)
+        png = Path(args.png) if args.png else bag.parent / f"{bag.stem}_analysis.png"
+        print(f"  wrote {plot_analysis(result, png)}")
+    if args.json:
+        _write_json(result, args.json)
+    return 0
+
+
+def _cmd_replay(args) -> int:
+    from .bagtools import format_replay, replay
+    result = replay(args.bag)
+    if args.json == "-":
+        _write_json(result, "-")
+    else:
+        print(format_replay(result))
+        if args.json:
+            _write_json(result, args.json)
+    return 0 if result["identical"] else 1
+
+
+def _cmd_recover(args) -> int:
+    from .bag import recover
+    report = recover(args.bag, args.out)
+    print(f"{report.output}: recovered {report.messages} messages on {report.topics} topics "
+          f"from {report.chunks} complete chunks (reading stopped at: {report.stopped_because})")
+    return 0
+
+
+def _cmd_play(args) -> int:
+    from .player import play
+    return play(args.bag, rate=args.rate, loop=args.loop, topics=args.topics, delay=args.delay)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="cloth-lod", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -187,6 +301,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--frames", type=int, default=1,
                      help="panels in the picture, evenly spaced in time (default 1: final state)")
     run.add_argument("--quiet", action="store_true", help="no progress lines")
+    run.add_argument("--bag", metavar="DIR",
+                     help="record the session to this rosbag2 MCAP bag directory (needs rclpy)")
+    run.add_argument("--bag-rate", type=float, default=30.0,
+                     help="frames recorded per simulated second (default 30)")
+    run.add_argument("--bag-compression", default="zstd", choices=("none", "zstd", "lz4"),
+                     help="MCAP chunk compression (default zstd)")
     run.set_defaults(func=_cmd_run)
     compare = sub.add_parser(
         "compare", help="adaptive vs uniform at the same level: time per step and distance")
@@ -205,6 +325,38 @@ def build_parser() -> argparse.ArgumentParser:
     compare.set_defaults(func=_cmd_compare)
     scenes = sub.add_parser("scenes", help="list the built-in scenes")
     scenes.set_defaults(func=_cmd_scenes)
+    analyze = sub.add_parser("analyze", help="summary and plots of a recorded session")
+    analyze.add_argument("bag", help="bag directory or .mcap file")
+    analyze.add_argument("--png", help="plot file (default <bag>_analysis.png beside the bag)")
+    analyze.add_argument("--no-png", action="store_true", help="do not write the plot")
+    analyze.add_argument("--json", nargs="?", const="-", metavar="PATH",
+                         help="print the result as JSON (or write it to PATH)")
+    analyze.set_defaults(func=_cmd_analyze)
+    replay = sub.add_parser("replay", help="re-simulate a recorded session and compare")
+    replay.add_argument("bag", help="bag directory or .mcap file")
+    replay.add_argument("--json", nargs="?", const="-", metavar="PATH",
+                        help="print the result as JSON (or write it to PATH)")
+    replay.set_defaults(func=_cmd_replay)
+    recover = sub.add_parser("recover", help="rebuild a valid bag from an interrupted one")
+    recover.add_argument("bag", help="bag directory or .mcap file")
+    recover.add_argument("--out", help="new bag directory (default <bag>_recovered)")
+    recover.set_defaults(func=_cmd_recover)
+    play = sub.add_parser("play", help="republish a recorded session with its original timing")
+    play.add_argument("bag", help="bag directory or .mcap file")
+    play.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
+    play.add_argument("--loop", action="store_true", help="start again at the end")
+    play.add_argument("--delay", type=float, default=0.0,
+                      help="seconds to wait for subscribers before the first message")
+    play.add_argument("--topics", nargs="+", metavar="TOPIC",
+                      help="only these topics (default: all recorded topics)")
+    play.set_defaults(func=_cmd_play)
+    for name, module_name, text in (
+            ("bench", "bench", "speed against error: uniform levels and adaptive thresholds"),
+            ("stress", "stress", "hard-case stability suite: one table, pass/fail")):
+        module = importlib.import_module(f"cloth_lod_ros.{module_name}")
+        command = sub.add_parser(name, help=text)
+        module.add_arguments(command)
+        command.set_defaults(func=module.run)
     return parser
 
 
@@ -218,6 +370,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except (OSError, ValueError) as exc:
         print(f"cloth-lod: error: {exc}", file=sys.stderr)
+        return 2
+    except BagError as exc:
+        print(f"cloth-lod: bag error: {exc}", file=sys.stderr)
         return 2
 
 

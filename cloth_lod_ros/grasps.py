@@ -60,6 +60,7 @@ class Grasp:
     command_rotation: Rotation | None = None
     jumps: int = 0
     lagging: bool = False
+    holding_in_place: bool = False      # the command is "stay where it closed", not a pose
 
     @classmethod
     def from_config(cls, cfg) -> "Grasp":
@@ -79,9 +80,15 @@ class Grasp:
         self.offsets = self.rotation.inv().apply(positions - self.position)
         if self.command_position is None and len(self.waypoints) == 0:
             self.command_position = self.position.copy()
+            self.holding_in_place = True
 
     def release(self) -> None:
         self.closed = False
+        if self.holding_in_place:
+            # Closing again later holds the cloth where it is then, instead of
+            # carrying it back to where this grip happened to close.
+            self.command_position = None
+            self.holding_in_place = False
         self.nodes = np.zeros(0, dtype=np.int64)
         self.offsets = np.zeros((0, 3))
 
@@ -102,6 +109,7 @@ class Grasp:
             rotation = Rotation.from_quat(q / np.linalg.norm(q))
         self.waypoints = np.zeros((0, 4))            # a live command replaces the script
         self.command_position = position.copy()
+        self.holding_in_place = False
         if rotation is not None:
             self.command_rotation = rotation
 

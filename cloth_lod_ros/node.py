@@ -11,7 +11,13 @@ Topics (relative names, so a namespace or remap moves them all):
        one point per particle), ``cloth/grid`` (organised PointCloud2 sampled on a
        fixed (u, v) grid: the same points every message, whatever the mesh)
 Services: ``grasp/<name>/close`` (std_srvs/SetBool: true holds, false releases),
-  ``cloth/reset``, ``cloth/step`` (std_srvs/Trigger), ``cloth/pause`` (std_srvs/SetBool).
+  ``cloth/reset``, ``cloth/step`` (std_srvs/Trigger), ``cloth/pause`` (std_srvs/SetBool),
+  ``cloth/record`` (std_srvs/SetBool: true starts a bag, false finishes it).
+
+Recording (parameter ``record`` or the service) writes a rosbag2 MCAP bag of the
+session: inputs as applied, outputs as published, and the scene and parameters
+(:mod:`cloth_lod_ros.session`).  A recording failure is logged and reported in
+``cloth/lod_stats``; the simulation goes on.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ import time
 
 import numpy as np
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
@@ -33,13 +39,14 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
-from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from .config import SceneError, load_scene
-from .markers import (CUBE, DELETEALL, MarkerSpec, cloth_markers, obstacle_markers,
-                      serialize_marker_array, serialize_point_cloud, unique_edges)
+from rclpy.serialization import serialize_message
+
+from .bag import COMPRESSIONS, BagError
+from .config import SceneError, load_scene, scene_to_dict
+from .session import FrameBuilder, SessionRecorder
 from .sim import ClothSim, SimulationError
 
 __all__ = ["ClothLodNode", "main"]
@@ -90,6 +97,13 @@ class ClothLodNode(Node):
         self.declare_parameter("colour_by", "level", string(
             description="surface colours: 'level' or 'shading'"))
         self.declare_parameter("wireframe", True, string(description="publish the wireframe"))
+        self.declare_parameter("record", False, string(
+            description="record the session to a bag from the start", read_only=True))
+        self.declare_parameter("record_path", "", string(
+            description="bag directory; '' = bags/cloth_lod_<date>_<time>; must not exist",
+            read_only=True))
+        self.declare_parameter("record_compression", "zstd", string(
+            description=f"MCAP chunk compression: {', '.join(COMPRESSIONS)}", read_only=True))
         scene = load_scene(self.get_parameter("scene").value)
         for name, (path, unit, low, high) in LIVE.items():
             section, key = path.split(".")
@@ -129,9 +143,17 @@ class ClothLodNode(Node):
         self.create_service(SetBool, "cloth/pause",
                             lambda req, res: self._locked(self._on_pause, req, res),
                             callback_group=self._inputs)
+        self.create_service(SetBool, "cloth/record",
+                            lambda req, res: self._locked(self._on_record, req, res),
+                            callback_group=self._inputs)
         self.paused = bool(self.get_parameter("paused").value)
+        self.recorder: SessionRecorder | None = None
+        self.record_error: str | None = None
+        if self.get_parameter("record").value:
+            self._start_recording(self.get_parameter("record_path").value)
         self._last_publish = -math.inf
-        self._wall_start = time.monotonic()
+        self._wall_start = time.monotonic()     # pacing origin (moves on resume)
+        self._session_wall_start = self._wall_start   # wall_time_s origin (moves on reset)
         self._sim_start = 0.0
         period = self.sim.time_step if self.get_parameter("realtime").value else 1e-4
         self.timer = self.create_timer(period, lambda: self._locked(self._on_timer),
@@ -150,13 +172,12 @@ class ClothLodNode(Node):
                      for name, (path, *_) in LIVE.items()}
         if self.get_parameter("time_step").value > 0:
             overrides["simulation.time_step"] = self.get_parameter("time_step").value
-        self.sim = ClothSim(load_scene(self.get_parameter("scene").value, overrides))
-        n = self.get_parameter("grid_resolution").value
-        us = np.linspace(0.0, self.sim.scene.cloth.width, n)
-        vs = np.linspace(0.0, self.sim.scene.cloth.height, n)
-        self.grid_uv = np.array([[u, v] for v in vs for u in us])
-        self._edges_key = None
-        self._marker_count = 0
+        # Only recent step statistics are kept: the node may run for days.
+        self.sim = ClothSim(load_scene(self.get_parameter("scene").value, overrides),
+                            keep_stats=1000)
+        self.frames = FrameBuilder(self.frame_id, self.get_parameter("grid_resolution").value,
+                                   self.get_parameter("colour_by").value,
+                                   self.get_parameter("wireframe").value)
         self.error = None
 
     def _on_set_parameters(self, params) -> SetParametersResult:
@@ -169,19 +190,10 @@ class ClothLodNode(Node):
 
     def _apply_live(self, changes: dict) -> SetParametersResult:
         try:
-            from .config import scene_from_dict, scene_to_dict
-            data = scene_to_dict(self.sim.scene)
-            for path, value in changes.items():
-                section, key = path.split(".")
-                data[section][key] = value
-            scene = scene_from_dict(data)
+            self.sim.update_parameters(changes)
         except SceneError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        self.sim.scene = scene
-        self.sim.solver.material = scene.material
-        if self.sim.lod_policy is not None:
-            self.sim.lod_policy.config = scene.lod
-            self.sim.lod_policy.bend_stiffness = scene.material.bend_stiffness
+        self._record_input("parameters", changes=changes)
         return SetParametersResult(successful=True)
 
     def _on_timer(self) -> None:
@@ -210,6 +222,9 @@ class ClothLodNode(Node):
     # -- inputs --------------------------------------------------------------
     def _on_pose(self, name: str, msg: PoseStamped) -> None:
         """Check a pose when it arrives (stamps are judged now, not after a step)."""
+        if self.recorder is not None:
+            with self._lock:
+                self.recorder.record_message(f"grasp/{name}/pose", serialize_message(msg))
         reason = self._check_pose(msg)
         if reason is not None:
             self.rejected[reason] += 1
@@ -220,6 +235,8 @@ class ClothLodNode(Node):
         p, q = msg.pose.position, msg.pose.orientation
         with self._lock:
             self.sim.set_grasp_target(name, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+            self._record_input("grasp_target", grasp=name, position=[p.x, p.y, p.z],
+                               orientation=[q.x, q.y, q.z, q.w])
 
     def _check_pose(self, msg: PoseStamped) -> str | None:
         if msg.header.frame_id not in ("", self.frame_id):
@@ -239,6 +256,7 @@ class ClothLodNode(Node):
     def _on_close(self, name: str, request, response):
         try:
             (self.sim.close_grasp if request.data else self.sim.open_grasp)(name)
+            self._record_input("grasp_close" if request.data else "grasp_open", grasp=name)
             response.success = True
             response.message = f"grasp {name} {'closed' if request.data else 'opened'}"
         except (KeyError, ValueError) as exc:
@@ -247,7 +265,9 @@ class ClothLodNode(Node):
 
     def _on_reset(self, request, response):
         self._build_sim()
+        self._record_input("reset", scene=scene_to_dict(self.sim.scene))
         self._sim_start, self._wall_start = 0.0, time.monotonic()
+        self._session_wall_start = self._wall_start
         response.success, response.message = True, "reset to the scene's initial state"
         self._publish(force=True)
         return response
@@ -260,11 +280,81 @@ class ClothLodNode(Node):
         return response
 
     def _on_pause(self, request, response):
+        if self.paused != bool(request.data):
+            self._record_input("pause" if request.data else "resume")
         self.paused = bool(request.data)
         if not self.paused:
             self._sim_start, self._wall_start = self.sim.time, time.monotonic()
         response.success, response.message = True, "paused" if self.paused else "running"
         return response
+
+    # -- recording -----------------------------------------------------------
+    def _record_input(self, kind: str, **payload) -> None:
+        if self.recorder is not None:
+            self.recorder.record_input(self.sim, kind, self._now_ns(), **payload)
+
+    def _now_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def _start_recording(self, path: str) -> str:
+        """Open a bag; on failure log it, report it in lod_stats and go on."""
+        if not path:
+            path = time.strftime("bags/cloth_lod_%Y%m%d_%H%M%S")
+        try:
+            self.recorder = SessionRecorder(
+                path, self.get_namespace(), self.get_parameter("record_compression").value,
+                grasp_names=[g.name for g in self.sim.grasps])
+        except BagError as exc:
+            self.record_error = str(exc)
+            self.get_logger().error(f"recording not started: {exc}")
+            return self.record_error
+        self.record_error = None
+        if self.sim.step_count:
+            self.get_logger().warning(
+                f"recording starts at step {self.sim.step_count}: `cloth-lod replay` needs a "
+                "recording from the start (record:=true, or call cloth/reset after this)")
+        params = {n: self.get_parameter(n).value
+                  for n in self.list_parameters([], 0).names}
+        self.recorder.start(self.sim, params, self.get_parameter("grid_resolution").value,
+                            self._now_ns())
+        self.get_logger().info(f"recording to {self.recorder.path}")
+        return f"recording to {self.recorder.path}"
+
+    def _stop_recording(self) -> str:
+        recorder, self.recorder = self.recorder, None
+        if recorder is None:
+            return "not recording"
+        recorder.close()
+        if recorder.failed:
+            self.record_error = recorder.failed
+            return f"recording failed: {recorder.failed}"
+        if self.context.ok():        # no ROS logging once the context is shut down
+            self.get_logger().info(f"recording finished: {recorder.path}")
+        return f"wrote {recorder.path}"
+
+    def _on_record(self, request, response):
+        if request.data and self.recorder is None:
+            response.message = self._start_recording(self.get_parameter("record_path").value
+                                                     if self.record_error is None else "")
+            response.success = self.recorder is not None
+        elif request.data:
+            response.success, response.message = True, f"already recording to {self.recorder.path}"
+        else:
+            response.message = self._stop_recording()
+            response.success = self.record_error is None
+        return response
+
+    def _recording_status(self) -> str:
+        if self.recorder is not None and self.recorder.failed:
+            self.record_error = self.recorder.failed
+        if self.record_error is not None:
+            return f"failed: {self.record_error}"
+        return f"on: {self.recorder.path}" if self.recorder is not None else "off"
+
+    def destroy_node(self):
+        with self._lock:
+            self._stop_recording()
+        return super().destroy_node()
 
     # -- outputs -------------------------------------------------------------
     def _publish(self, force: bool) -> None:
@@ -273,59 +363,28 @@ class ClothLodNode(Node):
             return
         self._last_publish = now
         sim = self.sim
-        stamp = self.get_clock().now().to_msg()
-        stamp_t = (stamp.sec, stamp.nanosec)
-        key = (id(sim.mesh), sim.mesh.triangle_count)
-        if key != self._edges_key:           # topology changed: recompute the wireframe edges
-            self._edges = unique_edges(sim.triangles, sim.triangle_levels)
-            self._edges_key = key
-        grasp_points = [g.position for g in sim.grasps if g.closed]
-        specs = cloth_markers(sim.positions, sim.triangles, sim.triangle_levels, sim.max_level,
-                              self.frame_id, stamp_t, grasp_points=np.array(grasp_points),
-                              colour_by=self.get_parameter("colour_by").value,
-                              wireframe=self.get_parameter("wireframe").value,
-                              edges=self._edges)
-        count = len(specs)
-        if count < self._marker_count:            # a marker went away: clear stale ones
-            specs.insert(0, MarkerSpec("", 0, CUBE, self.frame_id, stamp_t, action=DELETEALL))
-        self._marker_count = count
-        specs += obstacle_markers(sim.scene.obstacles, self.frame_id, stamp_t)
-        self.markers_pub.publish(serialize_marker_array(specs))
-        self.points_pub.publish(serialize_point_cloud(sim.positions, self.frame_id, stamp_t))
-        n = self.get_parameter("grid_resolution").value
-        self.grid_pub.publish(serialize_point_cloud(sim.sample(self.grid_uv), self.frame_id,
-                                                    stamp_t, height=n))
-        self.stats_pub.publish(self._diagnostics(stamp))
-
-    def _diagnostics(self, stamp) -> DiagnosticArray:
-        sim = self.sim
-        status = DiagnosticStatus(name="cloth_lod: simulation", hardware_id=sim.scene.name)
-        last = sim.stats[-1] if sim.stats else None
-        wall = time.monotonic() - self._wall_start
-        values = {"sim_time_s": f"{sim.time:.4f}", "particles": str(sim.mesh.vertex_count),
-                  "triangles": str(sim.mesh.triangle_count),
-                  "triangles_per_level": " ".join(
-                      str(c) for c in np.bincount(sim.triangle_levels,
-                                                  minlength=sim.max_level + 1)),
-                  "paused": str(self.paused).lower(),
+        stamp = self.get_clock().now()
+        wall = now - self._wall_start
+        recording = self._recording_status()
+        values = {"paused": str(self.paused).lower(),
+                  "wall_time_s": f"{now - self._session_wall_start:.6f}",
                   "real_time_factor": f"{(sim.time - self._sim_start) / max(wall, 1e-9):.3f}",
-                  "rejected_poses": str(sum(self.rejected.values()))}
+                  "rejected_poses": str(sum(self.rejected.values())),
+                  "recording": recording}
         values.update({f"rejected_{k}": str(v) for k, v in self.rejected.items()})
-        if last is not None:
-            for f in dataclasses.fields(last):
-                if f.name not in ("triangles_per_level", "time"):
-                    values[f.name] = str(getattr(last, f.name))
-        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        level, message = None, "paused" if self.paused else "running"
         if self.error is not None:
-            status.level, status.message = DiagnosticStatus.ERROR, self.error
-        elif last is not None and not last.converged:
-            status.level, status.message = DiagnosticStatus.WARN, "linear solve did not converge"
-        elif self.paused:
-            status.level, status.message = DiagnosticStatus.OK, "paused"
-        else:
-            status.level, status.message = DiagnosticStatus.OK, "running"
-        return DiagnosticArray(header=Header(stamp=stamp, frame_id=self.frame_id),
-                               status=[status])
+            level, message = DiagnosticStatus.ERROR, self.error
+        elif recording.startswith("failed"):
+            level, message = DiagnosticStatus.WARN, "recording failed; simulation running"
+        sec, nanosec = stamp.seconds_nanoseconds()
+        frames = self.frames.build(sim, (sec, nanosec), values, level, message)
+        self.markers_pub.publish(frames["cloth/markers"])
+        self.points_pub.publish(frames["cloth/points"])
+        self.grid_pub.publish(frames["cloth/grid"])
+        self.stats_pub.publish(frames["cloth/lod_stats"])
+        if self.recorder is not None:
+            self.recorder.record_frame(frames, stamp.nanoseconds)
 
 
 class _RosLogHandler(logging.Handler):

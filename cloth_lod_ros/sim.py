@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .config import SceneConfig, load_scene
+from .config import SceneConfig, SceneError, load_scene
 from .contact import find_contacts, make_obstacle, nearest_surface, penetrations
 from .grasps import Grasp
 from .forces import Elements, elastic_energies, evaluate, precompute
@@ -360,7 +360,14 @@ class ClothSim:
     them if you keep them across steps.
     """
 
-    def __init__(self, scene: SceneConfig):
+    def __init__(self, scene: SceneConfig, keep_stats: int | None = None):
+        """Args:
+            scene: the validated scene.
+            keep_stats: keep only the statistics of about this many latest steps
+                in :attr:`stats` (a long-running node); ``None`` keeps all.
+        """
+        if keep_stats is not None and keep_stats < 1:
+            raise ValueError(f"keep_stats must be at least 1, got {keep_stats}")
         self.scene = scene
         cloth = scene.cloth
         base = base_mesh(cloth.width, cloth.height, *cloth.base_blocks)
@@ -370,6 +377,8 @@ class ClothSim:
                                           scene.simulation.gravity)
         self.time_step = scene.simulation.time_step
         self.stats: list[StepStats] = []
+        self.keep_stats = keep_stats
+        self.step_count = 0             # steps taken since construction
         self._locator: PointLocator | None = None
         self._unconverged_steps = 0
         self.max_level = cloth.level
@@ -559,7 +568,7 @@ class ClothSim:
             self._run_grasp_script(next_time)
         refines = merges = 0
         lod_ms = 0.0
-        if self.hierarchy is not None and len(self.stats) % self.scene.lod.check_interval == 0:
+        if self.hierarchy is not None and self.step_count % self.scene.lod.check_interval == 0:
             lod_start = _time.perf_counter()
             evaluation, evaluate_ms = self.solver.prepare(self.elements, self.state, h)
             refines, merges = self.adapt(evaluation)
@@ -611,7 +620,7 @@ class ClothSim:
         elastic = elastic_energies(self.elements, self.scene.material, x)
         per_level = np.bincount(self.mesh.levels, minlength=self.max_level + 1)
         stats = StepStats(
-            step_index=len(self.stats), time=new_state.time,
+            step_index=self.step_count, time=new_state.time,
             vertex_count=self.mesh.vertex_count, triangle_count=self.mesh.triangle_count,
             pinned_count=len(held[0]), contact_count=report.contacts,
             refines=refines, merges=merges,
@@ -627,7 +636,41 @@ class ClothSim:
             bend_energy=elastic["bend"], max_strain=elastic["max_strain"],
             max_speed=float(np.sqrt(np.max(np.sum(v * v, axis=1)))))
         self.stats.append(stats)
+        self.step_count += 1
+        if self.keep_stats is not None and len(self.stats) > 2 * self.keep_stats:
+            del self.stats[:-self.keep_stats]      # amortised: trim by half at a time
         return stats
+
+    def update_parameters(self, changes: dict) -> None:
+        """Change scene fields between steps, validated as a whole scene.
+
+        Args:
+            changes: ``{"section.field": value}``, e.g.
+                ``{"lod.refine_threshold": 0.002, "material.bend_stiffness": 1e-4}``.
+                Only material (not density) and LOD thresholds take effect on a
+                running simulation (the mesh, masses, pins and obstacles are
+                built once).
+
+        Raises:
+            SceneError: a field is unknown, not live, or the resulting scene
+                is invalid; nothing is changed.
+        """
+        from .config import scene_from_dict, scene_to_dict
+        data = scene_to_dict(self.scene)
+        for path, value in changes.items():
+            section, _, key = path.partition(".")
+            # Density sets the particle masses, built once with the mesh.
+            if (section not in ("material", "lod") or key not in data.get(section, {})
+                    or path in ("material.density", "lod.enabled", "lod.initial_level")):
+                raise SceneError(f"{path}: not a live parameter (material.* except density, "
+                                 "lod.* except enabled and initial_level)")
+            data[section][key] = value
+        scene = scene_from_dict(data)
+        self.scene = scene
+        self.solver.material = scene.material
+        if self.lod_policy is not None:
+            self.lod_policy.config = scene.lod
+            self.lod_policy.bend_stiffness = scene.material.bend_stiffness
 
     def _sync_hierarchy(self) -> Hierarchy48:
         """Write the live state back into the hierarchy (it is only read at

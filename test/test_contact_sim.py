@@ -183,6 +183,29 @@ def test_releasing_a_grasp_lets_the_cloth_fall():
     np.testing.assert_allclose(sim.velocities[:, 2].mean(), -9.81 * 0.5, rtol=0.05)
 
 
+def test_closing_again_holds_the_cloth_where_it_is_unless_a_pose_was_commanded():
+    sim = ClothSim(scene(grasps=[grasp("a", (0.0, 1.0)), grasp("b", (1.0, 1.0))]))
+    for _ in range(10):
+        sim.step()
+    sim.open_grasp("a")
+    for _ in range(15):
+        sim.step()
+    corner = sim.sample([[0.0, 1.0]])[0]
+    sim.close_grasp("a")                       # no pose commanded: hold it here
+    for _ in range(20):
+        sim.step()
+    np.testing.assert_allclose(sim.sample([[0.0, 1.0]])[0], corner, atol=1e-9)
+    # A commanded pose outlives open/close: the grip goes where it was sent.
+    target = corner + [0.0, 0.0, 0.1]
+    sim.set_grasp_target("a", target)
+    sim.open_grasp("a")
+    sim.step()
+    sim.close_grasp("a")
+    for _ in range(30):
+        sim.step()
+    np.testing.assert_allclose(sim.grasp("a").position, target, atol=1e-9)
+
+
 def test_patch_grasp_holds_several_particles_rigidly_and_turns_them():
     sim = ClothSim(scene(grasps=[grasp(uv=(0.5, 1.0), width=0.3)], level=4))
     sim.step()

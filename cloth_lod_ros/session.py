@@ -1,0 +1,278 @@
+"""Output frames and session recording, shared by the node and the headless runner.
+
+:class:`FrameBuilder` turns one simulator state into the CDR bytes of the node's
+outputs (``cloth/markers``, ``cloth/points``, ``cloth/grid``, ``cloth/lod_stats``),
+so a bag written headless and one written by the node hold the same messages.
+
+:class:`SessionRecorder` writes a session to a rosbag2 bag (DESIGN.md §7):
+
+* ``/cloth/session`` (std_msgs/String, JSON, first message): the resolved scene,
+  the node parameters, the grid resolution and the package version - what
+  ``cloth-lod replay`` rebuilds the simulator from;
+* ``/cloth/inputs`` (std_msgs/String, JSON): every input *as the simulator
+  applied it*, with the step count it was applied before: grasp targets,
+  open/close, parameter changes, resets, pause/resume;
+* ``/grasp/<name>/pose`` (geometry_msgs/PoseStamped): the poses as received;
+* the outputs above, exactly as published.
+
+Log times never decrease (a clock step backwards is clamped), and MCAP readers
+break ties by file position, so log-time order is the order in which things
+happened to the simulator; the four messages of one frame share a log time.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time as _time
+from importlib import metadata as _metadata
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Header, String
+
+from .bag import BagError, BagWriter, qos_profiles_yaml
+from .config import scene_to_dict
+from .markers import (CUBE, DELETEALL, MarkerSpec, cloth_markers, obstacle_markers,
+                      serialize_marker_array, serialize_point_cloud, unique_edges)
+
+__all__ = ["FrameBuilder", "SessionRecorder", "grid_uv", "OUTPUT_TYPES", "SESSION_FORMAT"]
+
+log = logging.getLogger(__name__)
+
+SESSION_FORMAT = 1
+# Relative output topic -> (type, QoS as offered by the node's publishers).
+OUTPUT_TYPES = {
+    "cloth/markers": ("visualization_msgs/msg/MarkerArray",
+                      qos_profiles_yaml(durability="transient_local", depth=1)),
+    "cloth/points": ("sensor_msgs/msg/PointCloud2", qos_profiles_yaml()),
+    "cloth/grid": ("sensor_msgs/msg/PointCloud2", qos_profiles_yaml()),
+    "cloth/lod_stats": ("diagnostic_msgs/msg/DiagnosticArray", qos_profiles_yaml()),
+}
+
+
+def package_version() -> str:
+    try:
+        return _metadata.version("cloth_lod_ros")
+    except _metadata.PackageNotFoundError:       # running from a source tree
+        return "source"
+
+
+def grid_uv(scene, resolution: int) -> np.ndarray:
+    """``(resolution², 2)`` material points (m) of ``cloth/grid``, row-major in v then u."""
+    us = np.linspace(0.0, scene.cloth.width, resolution)
+    vs = np.linspace(0.0, scene.cloth.height, resolution)
+    return np.stack(np.meshgrid(us, vs), axis=-1).reshape(-1, 2)
+
+
+class FrameBuilder:
+    """Builds one frame of outputs from a simulator; keeps the per-step history
+    between frames so ``cloth/lod_stats`` carries every step's timings.
+
+    Args:
+        frame_id: frame of every header.
+        grid_resolution: points per side of ``cloth/grid``.
+        colour_by, wireframe: marker options (see :func:`cloth_markers`).
+    """
+
+    def __init__(self, frame_id: str = "world", grid_resolution: int = 21,
+                 colour_by: str = "level", wireframe: bool = True):
+        self.frame_id = frame_id
+        self.grid_resolution = int(grid_resolution)
+        self.colour_by = colour_by
+        self.wireframe = wireframe
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous simulator (call after a reset)."""
+        self._edges_key = None
+        self._edges = None
+        self._marker_count = 0
+        self._next_step = 0
+        self.total_refines = 0
+        self.total_merges = 0
+        self._grid_uv = None
+
+    def build(self, sim, stamp: tuple, values: dict | None = None,
+              level: int | None = None, message: str = "running") -> dict:
+        """CDR bytes of every output topic for the current state.
+
+        Args:
+            sim: the :class:`~cloth_lod_ros.sim.ClothSim`.
+            stamp: ``(sec, nanosec)`` of the headers.
+            values: extra ``lod_stats`` key/values (strings), e.g. the real-time factor.
+            level, message: diagnostic level and message (default: OK, or WARN
+                when the last linear solve did not converge).
+
+        Returns:
+            ``{relative topic: bytes}`` for the four output topics.
+        """
+        key = (id(sim.mesh), sim.mesh.triangle_count)
+        if key != self._edges_key:           # topology changed: recompute the wireframe edges
+            self._edges = unique_edges(sim.triangles, sim.triangle_levels)
+            self._edges_key = key
+        grasp_points = [g.position for g in sim.grasps if g.closed]
+        specs = cloth_markers(sim.positions, sim.triangles, sim.triangle_levels, sim.max_level,
+                              self.frame_id, stamp, grasp_points=np.array(grasp_points),
+                              colour_by=self.colour_by, wireframe=self.wireframe,
+                              edges=self._edges)
+        count = len(specs)
+        if count < self._marker_count:            # a marker went away: clear stale ones
+            specs.insert(0, MarkerSpec("", 0, CUBE, self.frame_id, stamp, action=DELETEALL))
+        self._marker_count = count
+        specs += obstacle_markers(sim.scene.obstacles, self.frame_id, stamp)
+        if self._grid_uv is None:
+            self._grid_uv = grid_uv(sim.scene, self.grid_resolution)
+        return {
+            "cloth/markers": serialize_marker_array(specs),
+            "cloth/points": serialize_point_cloud(sim.positions, self.frame_id, stamp),
+            "cloth/grid": serialize_point_cloud(sim.sample(self._grid_uv), self.frame_id,
+                                                stamp, height=self.grid_resolution),
+            "cloth/lod_stats": serialize_message(
+                self.diagnostics(sim, stamp, values or {}, level, message)),
+        }
+
+    def diagnostics(self, sim, stamp: tuple, values: dict, level=None,
+                    message: str = "running") -> DiagnosticArray:
+        """The ``cloth/lod_stats`` message.
+
+        Besides the last step's :class:`~cloth_lod_ros.sim.StepStats` it holds
+        ``step_count`` (steps since start or reset), running ``total_refines``
+        and ``total_merges``, and ``recent_step_ms``/``recent_lod_ms``/
+        ``recent_solve_ms``/``recent_cg_iterations``: every step since the
+        previous message, space-separated, so analysis sees each step.
+        """
+        recent = [s for s in sim.stats if s.step_index >= self._next_step]
+        self._next_step = sim.step_count
+        self.total_refines += sum(s.refines for s in recent)
+        self.total_merges += sum(s.merges for s in recent)
+        last = sim.stats[-1] if sim.stats else None
+        entries = {"sim_time_s": repr(float(sim.time)), "step_count": str(sim.step_count),
+                   "particles": str(sim.mesh.vertex_count),
+                   "triangles": str(sim.mesh.triangle_count),
+                   "triangles_per_level": " ".join(
+                       str(c) for c in np.bincount(sim.triangle_levels,
+                                                   minlength=sim.max_level + 1)),
+                   "total_refines": str(self.total_refines),
+                   "total_merges": str(self.total_merges),
+                   "recent_step_ms": " ".join(f"{s.step_ms:.4f}" for s in recent),
+                   "recent_lod_ms": " ".join(f"{s.lod_ms:.4f}" for s in recent),
+                   "recent_solve_ms": " ".join(f"{s.solve_ms:.4f}" for s in recent),
+                   "recent_cg_iterations": " ".join(str(s.cg_iterations) for s in recent)}
+        entries.update(values)
+        if last is not None:
+            for name, value in last.as_dict().items():
+                if name not in ("triangles_per_level", "time"):
+                    entries[name] = str(value)
+        if level is None:
+            level = DiagnosticStatus.OK
+            if last is not None and not last.converged:
+                level, message = DiagnosticStatus.WARN, "linear solve did not converge"
+        status = DiagnosticStatus(name="cloth_lod: simulation", hardware_id=sim.scene.name,
+                                  level=level, message=message,
+                                  values=[KeyValue(key=k, value=str(v))
+                                          for k, v in entries.items()])
+        sec, nanosec = stamp
+        header = Header(frame_id=self.frame_id)
+        header.stamp.sec, header.stamp.nanosec = int(sec), int(nanosec)
+        return DiagnosticArray(header=header, status=[status])
+
+
+class SessionRecorder:
+    """Records a session to a bag; a failure stops recording, never the caller.
+
+    Args:
+        path: bag directory (must not exist).
+        namespace: prefix of the recorded topic names (the node's namespace).
+        compression: ``"none"``, ``"zstd"`` or ``"lz4"`` chunk compression.
+        flush_interval: s, see :class:`~cloth_lod_ros.bag.BagWriter`.
+
+    Raises:
+        BagError: the bag cannot be created (unwritable or existing path).
+    """
+
+    def __init__(self, path, namespace: str = "/", compression: str = "zstd",
+                 flush_interval: float = 1.0, grasp_names=()):
+        self.namespace = "/" + namespace.strip("/") if namespace.strip("/") else ""
+        self.writer = BagWriter(path, compression=compression, flush_interval=flush_interval)
+        self.path = self.writer.path
+        self.failed: str | None = None
+        self._last_ns = 0
+        try:
+            for topic, (type_name, qos) in OUTPUT_TYPES.items():
+                self.writer.add_topic(self.topic(topic), type_name, qos)
+            self.writer.add_topic(self.topic("cloth/session"), "std_msgs/msg/String",
+                                  qos_profiles_yaml(durability="transient_local", depth=1))
+            self.writer.add_topic(self.topic("cloth/inputs"), "std_msgs/msg/String",
+                                  qos_profiles_yaml(depth=100))
+            for name in grasp_names:
+                self.writer.add_topic(self.topic(f"grasp/{name}/pose"),
+                                      "geometry_msgs/msg/PoseStamped")
+        except BagError:
+            self.writer.close()
+            raise
+
+    def topic(self, relative: str) -> str:
+        return f"{self.namespace}/{relative}"
+
+    @property
+    def active(self) -> bool:
+        return self.failed is None and not self.writer.closed
+
+    def _time(self, time_ns: int | None) -> int:
+        t = _time.time_ns() if time_ns is None else int(time_ns)
+        t = max(t, self._last_ns)
+        self._last_ns = t
+        return t
+
+    def _write(self, relative: str, data: bytes, time_ns: int | None) -> None:
+        if not self.active:
+            return
+        try:
+            self.writer.write(self.topic(relative), data, self._time(time_ns))
+        except BagError as exc:
+            self.failed = str(exc)
+            log.error("recording failed: %s; the simulation goes on without it", exc)
+
+    def start(self, sim, parameters: dict | None = None, grid_resolution: int = 21,
+              time_ns: int | None = None) -> None:
+        """Write ``/cloth/session`` and flush it, so even a killed session has it."""
+        session = {"format": SESSION_FORMAT, "package_version": package_version(),
+                   "scene": scene_to_dict(sim.scene), "parameters": parameters or {},
+                   "grid_resolution": int(grid_resolution),
+                   # Replay needs the simulation's start; a later start is marked.
+                   "start_step_count": int(sim.step_count), "start_sim_time": float(sim.time)}
+        self._write("cloth/session", serialize_message(String(data=json.dumps(session))),
+                    time_ns)
+        if self.active:
+            try:
+                self.writer.flush()
+            except BagError as exc:
+                self.failed = str(exc)
+
+    def record_frame(self, frames: dict, time_ns: int | None = None) -> None:
+        """Write one frame of :meth:`FrameBuilder.build` (all at the same log time)."""
+        t = self._time(time_ns)
+        for relative, data in frames.items():
+            self._write(relative, data, t)
+
+    def record_input(self, sim, kind: str, time_ns: int | None = None, **payload) -> None:
+        """Write one applied input: ``kind`` plus its payload, with the step count
+        it applies before and the simulated time."""
+        event = {"kind": kind, "step_count": int(sim.step_count), "sim_time": float(sim.time)}
+        event.update(payload)
+        self._write("cloth/inputs", serialize_message(String(data=json.dumps(event))), time_ns)
+
+    def record_message(self, relative: str, data: bytes, time_ns: int | None = None) -> None:
+        """Write a raw input message (e.g. a received grasp pose)."""
+        if self.topic(relative) in self.writer.topics:
+            self._write(relative, data, time_ns)
+
+    def close(self) -> None:
+        """Finish the bag (summary and metadata.yaml)."""
+        try:
+            self.writer.close()
+        except BagError as exc:
+            self.failed = self.failed or str(exc)
+            log.error("closing the recording failed: %s", exc)
