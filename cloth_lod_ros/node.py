@@ -349,7 +349,11 @@ class ClothLodNode(Node):
             self.record_error = self.recorder.failed
         if self.record_error is not None:
             return f"failed: {self.record_error}"
-        return f"on: {self.recorder.path}" if self.recorder is not None else "off"
+        if self.recorder is None:
+            return "off"
+        dropped = self.recorder.dropped_frames
+        return f"on: {self.recorder.path}" + (f" ({dropped} frames dropped: disk behind)"
+                                               if dropped else "")
 
     def destroy_node(self):
         with self._lock:

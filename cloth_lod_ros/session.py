@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import json
 import logging
+import queue
+import threading
 import time as _time
 from importlib import metadata as _metadata
 
@@ -182,6 +184,12 @@ class FrameBuilder:
 class SessionRecorder:
     """Records a session to a bag; a failure stops recording, never the caller.
 
+    Compression and file writes run on a background thread (zstandard and file
+    I/O release the GIL), so the simulating thread only queues bytes.  If the
+    disk cannot keep up and ``max_queued`` messages wait, further *output*
+    frames are dropped and counted in :attr:`dropped_frames`; inputs and the
+    session message are never dropped (replay needs every one of them).
+
     Args:
         path: bag directory (must not exist).
         namespace: prefix of the recorded topic names (the node's namespace).
@@ -193,12 +201,16 @@ class SessionRecorder:
     """
 
     def __init__(self, path, namespace: str = "/", compression: str = "zstd",
-                 flush_interval: float = 1.0, grasp_names=()):
+                 flush_interval: float = 1.0, grasp_names=(), max_queued: int = 512):
         self.namespace = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self.writer = BagWriter(path, compression=compression, flush_interval=flush_interval)
         self.path = self.writer.path
         self.failed: str | None = None
+        self.dropped_frames = 0
         self._last_ns = 0
+        self._max_queued = max_queued
+        self._queue: queue.Queue = queue.Queue()
+        self._thread = threading.Thread(target=self._drain, name="bag-writer", daemon=True)
         try:
             for topic, (type_name, qos) in OUTPUT_TYPES.items():
                 self.writer.add_topic(self.topic(topic), type_name, qos)
@@ -212,6 +224,23 @@ class SessionRecorder:
         except BagError:
             self.writer.close()
             raise
+        self._thread.start()
+
+    def _drain(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            topic, data, time_ns, flush = item
+            if self.failed is not None:
+                continue
+            try:
+                self.writer.write(topic, data, time_ns)
+                if flush:
+                    self.writer.flush()
+            except BagError as exc:
+                self.failed = str(exc)
+                log.error("recording failed: %s; the simulation goes on without it", exc)
 
     def topic(self, relative: str) -> str:
         return f"{self.namespace}/{relative}"
@@ -226,14 +255,10 @@ class SessionRecorder:
         self._last_ns = t
         return t
 
-    def _write(self, relative: str, data: bytes, time_ns: int | None) -> None:
-        if not self.active:
-            return
-        try:
-            self.writer.write(self.topic(relative), data, self._time(time_ns))
-        except BagError as exc:
-            self.failed = str(exc)
-            log.error("recording failed: %s; the simulation goes on without it", exc)
+    def _write(self, relative: str, data: bytes, time_ns: int | None,
+               flush: bool = False) -> None:
+        if self.active:
+            self._queue.put((self.topic(relative), data, self._time(time_ns), flush))
 
     def start(self, sim, parameters: dict | None = None, grid_resolution: int = 21,
               time_ns: int | None = None) -> None:
@@ -244,15 +269,13 @@ class SessionRecorder:
                    # Replay needs the simulation's start; a later start is marked.
                    "start_step_count": int(sim.step_count), "start_sim_time": float(sim.time)}
         self._write("cloth/session", serialize_message(String(data=json.dumps(session))),
-                    time_ns)
-        if self.active:
-            try:
-                self.writer.flush()
-            except BagError as exc:
-                self.failed = str(exc)
+                    time_ns, flush=True)
 
     def record_frame(self, frames: dict, time_ns: int | None = None) -> None:
         """Write one frame of :meth:`FrameBuilder.build` (all at the same log time)."""
+        if self._queue.qsize() > self._max_queued:
+            self.dropped_frames += 1             # the disk is behind: keep inputs, skip a frame
+            return
         t = self._time(time_ns)
         for relative, data in frames.items():
             self._write(relative, data, t)
@@ -270,7 +293,10 @@ class SessionRecorder:
             self._write(relative, data, time_ns)
 
     def close(self) -> None:
-        """Finish the bag (summary and metadata.yaml)."""
+        """Write what is queued, then finish the bag (summary and metadata.yaml)."""
+        if self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join()
         try:
             self.writer.close()
         except BagError as exc:

@@ -370,8 +370,9 @@ def test_node_and_headless_bags_analyse_the_same_way(observer, headless_bag, tmp
         assert a["scene"] == "hang_two_corners" and a["segments"] == 1
         assert a["steps"]["count"] == len(a["series"]["step_ms"]) > 30
         assert a["lod"]["refines"] > 0 and a["real_time_factor"]["overall"] > 0
-    # The node paces itself to the wall clock: its real-time factor is near 1.
-    assert 0.5 < a_node["real_time_factor"]["overall"] < 1.2
+    # The node paces itself to the wall clock: never (much) faster than real time.
+    # (How much slower depends on the machine's load, so no lower bound here.)
+    assert a_node["real_time_factor"]["overall"] < 1.1
     assert replay(bag)["identical"]
 
 
