@@ -46,7 +46,7 @@ import numpy as np
 from .mesh48 import RestMesh
 
 __all__ = ["Elements", "Evaluation", "precompute", "evaluate", "elastic_energies",
-           "hinge_angles"]
+           "stretch_lengths", "hinge_angles"]
 
 
 @dataclass(frozen=True)
@@ -318,6 +318,15 @@ def elastic_energies(elements: Elements, material, x: np.ndarray) -> dict:
         bend=float(0.5 * material.bend_stiffness
                    * np.sum(elements.hinge_weight * theta**2)),
         max_strain=float(strain.max()) if len(strain) else 0.0)
+
+
+def stretch_lengths(elements: Elements, x: np.ndarray) -> np.ndarray:
+    """``(t, 2)`` stretch ``|w_u|, |w_v|`` of every triangle at positions ``x`` (m);
+    1 is the rest length, so ``|w| − 1`` is the strain."""
+    xt = x[elements.triangles]
+    wu = np.einsum("tk,tkd->td", elements.coef_u, xt)
+    wv = np.einsum("tk,tkd->td", elements.coef_v, xt)
+    return np.column_stack([np.sqrt(_dot(wu, wu)), np.sqrt(_dot(wv, wv))])
 
 
 def _scatter(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:

@@ -82,6 +82,16 @@ class Grasp:
             self.command_position = self.position.copy()
             self.holding_in_place = True
 
+    def hold_more(self, nodes: np.ndarray, positions: np.ndarray) -> None:
+        """Also hold particles ``nodes`` now at ``positions`` ``(k, 3)`` (m), e.g.
+        made by a split inside the patch; their offsets are taken where they
+        are, so nothing jumps (a midpoint of two held particles is exactly where
+        the rigid grip puts it anyway)."""
+        self.nodes = np.concatenate([self.nodes, np.asarray(nodes, dtype=np.int64)])
+        offsets = self.rotation.inv().apply(np.asarray(positions, dtype=float).reshape(-1, 3)
+                                            - self.position)
+        self.offsets = np.concatenate([self.offsets, offsets.reshape(-1, 3)])
+
     def release(self) -> None:
         self.closed = False
         if self.holding_in_place:

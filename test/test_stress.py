@@ -1,0 +1,229 @@
+"""Hard-case stability suite (quick flavours), its checker and report, and the
+two core fixes the suite found (step-size control, patch grasps under LOD)."""
+
+import argparse
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from cloth_lod_ros import stress
+from cloth_lod_ros.config import scene_from_dict
+from cloth_lod_ros.sim import ClothSim
+from cloth_lod_ros.stress import CASES, Bounds, Case, Variant, run_case
+
+CASE = {c.name: c for c in CASES}
+
+
+# -- every case, LOD on and off ---------------------------------------------------
+
+@pytest.mark.parametrize("lod", [True, False], ids=["lod_on", "lod_off"])
+@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+def test_case_stays_finite_bounded_and_conserving(case, lod):
+    result = run_case(case, lod, quick=True)
+    bounds = case.bounds
+    assert result.passed, result.failures
+    # The checker's verdict, restated on the recorded series.
+    h = stress.build_scene(case, lod, quick=True).simulation.time_step
+    assert result.steps == round(case.quick.duration / h)
+    for series in (result.max_strain, result.max_speed, result.energy):
+        assert np.all(np.isfinite(series))
+    assert result.max_strain.max() <= bounds.max_strain
+    assert result.max_speed.max() <= result.speed_limit
+    assert result.energy.max() <= bounds.energy_peak * result.budget
+    assert result.energy[-1] <= bounds.energy_final * result.budget
+    assert result.converged.all()
+    if lod and bounds.turnover is not None:
+        assert result.max_turnover <= bounds.turnover
+    if bounds.min_level is not None:
+        assert result.deepest_level >= bounds.min_level
+    if not lod:
+        assert result.topology_ops.sum() == 0
+
+
+def test_every_case_has_a_quick_and_a_full_flavour_and_builds():
+    assert len({c.name for c in CASES}) == len(CASES) == 8
+    for case in CASES:
+        assert case.quick.duration <= case.full.duration
+        assert case.quick.level <= case.full.level
+        for lod in (True, False):
+            for quick in (True, False):
+                scene = stress.build_scene(case, lod, quick)
+                assert scene.lod.enabled is lod
+
+
+# -- the checker --------------------------------------------------------------------
+
+TINY = Case(name="tiny", description="hang, level 2, 0.1 s", scene="hang_two_corners",
+            overrides={}, full=Variant(0.1, 2), quick=Variant(0.1, 2),
+            bounds=Bounds(max_strain=0.15), anchors=((0.0, 1.0), (1.0, 1.0)))
+
+
+def _run(monkeypatch, capsys, cases, argv):
+    monkeypatch.setattr(stress, "CASES", tuple(cases))
+    parser = argparse.ArgumentParser()
+    stress.add_arguments(parser)
+    code = stress.run(parser.parse_args(argv))
+    return code, capsys.readouterr().out
+
+
+def test_report_prints_a_row_per_run_and_exits_0(monkeypatch, capsys, tmp_path):
+    path = tmp_path / "out" / "stress.json"
+    code, out = _run(monkeypatch, capsys, [TINY], ["--quick", "--json", str(path)])
+    assert code == 0
+    rows = [line for line in out.splitlines() if line.startswith("tiny")]
+    assert [r.split()[1] for r in rows] == ["on", "off"]
+    assert all(r.split()[2] == "6" and r.rstrip().endswith("pass") for r in rows)
+    for column in ("strain", "speed", "E init/max/final", "CG mean/max", "ops total/max/s"):
+        assert column in out
+    assert "2/2 runs passed" in out
+    data = json.loads(path.read_text())
+    assert [r["lod"] for r in data["runs"]] == [True, False]
+    run = data["runs"][0]
+    assert run["passed"] and run["steps"] == 6 and len(run["series"]["energy"]) == 6
+    assert run["energy_max"] <= run["energy_budget"]
+
+
+def test_lod_and_case_selection(monkeypatch, capsys):
+    code, out = _run(monkeypatch, capsys, [TINY], ["--quick", "--lod", "off", "--cases", "tiny"])
+    assert code == 0
+    assert [line.split()[1] for line in out.splitlines() if line.startswith("tiny")] == ["off"]
+    code, _ = _run(monkeypatch, capsys, [TINY], ["--cases", "nope"])
+    assert code == 2
+
+
+def test_a_violated_bound_is_reported_as_fail(monkeypatch, capsys):
+    impossible = dataclasses.replace(TINY, bounds=Bounds(max_strain=1e-9, speed_factor=1e-9))
+    code, out = _run(monkeypatch, capsys, [impossible], ["--quick", "--lod", "on"])
+    assert code == 1
+    row = next(line for line in out.splitlines() if line.startswith("tiny"))
+    assert "FAIL" in row and "strain: max strain" in row and "speed: max speed" in row
+    assert "0/1 runs passed" in out
+
+
+def test_thrashing_without_hysteresis_is_caught():
+    """Near-equal thresholds with no minimum lifetime really thrash: the
+    topology check (not an injected bound) fails."""
+    case = CASE["near_equal_thresholds"]
+    no_lifetime = dataclasses.replace(
+        case, overrides={**case.overrides, "lod.min_lifetime": 0.0})
+    result = run_case(no_lifetime, lod=True, quick=True)
+    assert not result.passed
+    assert [f.split(":")[0] for f in result.failures] == ["topology"]
+    assert result.max_turnover > 1.5 * case.bounds.turnover      # measured 10
+
+
+def test_a_linearisation_blow_up_is_caught_without_the_step_size_control(monkeypatch):
+    """The 5 m/s impact with the step-size control switched off stretches the
+    cloth by ~40 % and multiplies its energy: strain and energy checks fail."""
+    monkeypatch.setattr(ClothSim, "max_substep_depth", 0)
+    result = run_case(CASE["drop_on_sphere_fast"], lod=False, quick=True)
+    checks = [f.split(":")[0] for f in result.failures]
+    assert "strain" in checks and "energy" in checks
+    assert result.max_strain.max() > 0.3 and result.energy.max() > 5 * result.budget
+
+
+def test_a_grip_that_has_not_caught_up_is_reported():
+    """The teleported grasp needs 0.25 s at 2 m/s; demanding it on target after
+    0.05 s is a real violation of that (wrong) deadline."""
+    too_early = dataclasses.replace(CASE["grasp_teleport"], catch_up=(("left", 0.55),))
+    result = run_case(too_early, lod=True, quick=True)
+    assert [f.split(":")[0] for f in result.failures] == ["catch_up"]
+
+
+# -- core fixes the suite found ---------------------------------------------------
+
+def _scene(level=3, lod=None, grasps=(), pins=(), gravity=(0, 0, -9.81), obstacles=(),
+           origin=(0.0, 0.0, 1.0)):
+    return scene_from_dict({
+        "name": "stress_test",
+        "cloth": {"width": 1.0, "height": 1.0, "base_blocks": [4, 4], "level": level,
+                  "origin": list(origin)},
+        "material": {"air_drag": 0.0},
+        "pins": [dict(p) for p in pins], "grasps": [dict(g) for g in grasps],
+        "obstacles": [dict(o) for o in obstacles],
+        "simulation": {"time_step": 1 / 60, "duration": 1.0, "gravity": list(gravity)},
+        "solver": {"tolerance": 1e-6},
+        "lod": lod or {"enabled": False},
+    })
+
+
+def _yank(sim):
+    """Hang 20 steps, then move pin "a" 0.33 m in one step (20 m/s)."""
+    for _ in range(20):
+        assert sim.step().substeps == 1              # ordinary motion: one solve
+    target = sim.positions[sim.pin("a").vertex] + [0.0, -0.1, 0.3]
+    sim.set_pin_target("a", target)
+    return target, sim.step()
+
+
+def test_a_step_whose_stretch_jumps_is_split_and_pins_still_land_exactly(monkeypatch):
+    """A pin yanked 0.33 m in one step over-stretches its neighbours in one
+    linearised step; the step is redone in parts, the pin ends exactly on its
+    target, the clock exactly one step on, and the stretch is about half."""
+    pins = [{"name": "a", "uv": [0.0, 1.0]}, {"name": "b", "uv": [1.0, 1.0]}]
+    sim = ClothSim(_scene(pins=pins))
+    target, stats = _yank(sim)
+    assert stats.substeps > 1
+    assert np.array_equal(sim.positions[sim.pin("a").vertex], target)
+    assert sim.time == stats.time and stats.time == pytest.approx(21 / 60, abs=1e-12)
+    monkeypatch.setattr(ClothSim, "max_substep_depth", 0)
+    uncontrolled = ClothSim(_scene(pins=pins))
+    _, single = _yank(uncontrolled)
+    assert single.substeps == 1
+    assert stats.max_strain < 0.6 * single.max_strain      # measured 0.31 vs 0.65
+
+
+@pytest.mark.parametrize("control", [True, False], ids=["control", "no_control"])
+def test_a_fast_impact_stays_physical_with_the_step_size_control(control, monkeypatch):
+    """5 m/s onto a sphere at level 5.  Without the control one linearised step
+    stretches the cloth by ~40 % and multiplies its energy ~9x (measured);
+    with it the strain stays at a few per cent and the energy, which
+    inelastic contact can only remove, grows by < 1 %."""
+    if not control:
+        monkeypatch.setattr(ClothSim, "max_substep_depth", 0)
+    ball = {"type": "sphere", "centre": [0.5, 0.5, 0.0], "radius": 0.25}
+    sim = ClothSim(_scene(level=5, obstacles=[ball], origin=(0.0, 0.0, 0.3)))
+    sim.state.velocities[:] = [0.0, 0.0, -5.0]
+    initial = sum(sim.energy().values())
+    stats = [sim.step() for _ in range(12)]
+    strain = max(s.max_strain for s in stats)
+    energy = max(s.total_energy for s in stats)
+    if control:
+        assert max(s.substeps for s in stats) > 1
+        assert strain < 0.1 and energy < 1.01 * initial
+    else:
+        assert all(s.substeps == 1 for s in stats)
+        assert strain > 0.3 and energy > 5 * initial
+
+
+def test_patch_grasp_under_lod_holds_the_particles_splits_make_inside_it():
+    """A patch grasp closed on a coarse adaptive mesh holds the particles that
+    later splits create inside the patch, so it stays rigid when it turns."""
+    lod = {"enabled": True, "initial_level": 1, "min_lifetime": 0.0}
+    sim = ClothSim(_scene(level=5, lod=lod, gravity=(0, 0, 0),
+                          grasps=[{"name": "hand", "uv": [0.5, 1.0], "width": 0.3,
+                                   "close_time": 0.0}]))
+    sim.step()
+    g = sim.grasp("hand")
+    before_nodes = len(g.nodes)
+    for _ in range(4):
+        corners = sim.rest_uv[sim.triangles]                       # (t, 3, 2)
+        near = (np.linalg.norm(corners - [0.5, 1.0], axis=2) < 0.2).any(axis=1)
+        for tri in sim.triangle_ids[near]:
+            sim.refine(int(tri))
+    inside = np.linalg.norm(sim.rest_uv - [0.5, 1.0], axis=1) <= 0.15 + 1e-12
+    assert inside.sum() > before_nodes
+    assert set(sim.vertex_ids[inside]) <= set(g.nodes.tolist())
+    held = np.searchsorted(sim.vertex_ids, g.nodes)
+    before = sim.positions[held].copy()
+    centre = g.position.copy()
+    sim.set_grasp_target("hand", centre, orientation=[0.0, 0.0, np.sin(np.pi / 4),
+                                                      np.cos(np.pi / 4)])
+    for _ in range(30):
+        sim.step()
+    held = np.searchsorted(sim.vertex_ids, g.nodes)
+    rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(sim.positions[held], centre + (before - centre) @ rot.T,
+                               atol=1e-9)
