@@ -424,7 +424,7 @@ def test_play_delivers_the_recorded_messages_in_order_to_another_process(
     grids = []
     sub_grid = observer.create_subscription(PointCloud2, "/cloth/grid", grids.append, 100)
     proc = subprocess.Popen([sys.executable, "-m", "cloth_lod_ros.cli", "play", str(headless_bag),
-                             "--rate", "2", "--delay", "2", "--topics", "/cloth/lod_stats",
+                             "--rate", "2", "--delay", "4", "--topics", "/cloth/lod_stats",
                              "/cloth/grid"], env=env(), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     end = time.monotonic() + 30
