@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -113,7 +113,7 @@ def analyze(path) -> dict:
                    duration_s=(reader.end_ns - reader.start_ns) * 1e-9, topics=topics)
     h = float(session["scene"]["simulation"]["time_step"])
     step_ms, lod_ms, solve_ms, cg, step_time = [], [], [], [], []
-    frame_time, triangles, per_level, rtf_series, rtf_time = [], [], [], [], []
+    frame_time, frame_wall, triangles, per_level, rtf_series, rtf_time = [], [], [], [], [], []
     segments, refines, merges = 1, 0, 0
     sim_seconds = wall_seconds = 0.0
     previous = None
@@ -134,6 +134,7 @@ def analyze(path) -> dict:
         cg += _numbers(v.get("recent_cg_iterations", ""), int)
         step_time += [sim_time - h * (len(recent) - 1 - i) for i in range(len(recent))]
         frame_time.append(sim_time)
+        frame_wall.append(wall)
         triangles.append(int(v.get("triangles", 0)))
         per_level.append(_numbers(v.get("triangles_per_level", ""), int))
         if previous is not None:
@@ -173,7 +174,7 @@ def analyze(path) -> dict:
         mesh=dict(triangles_min=min(triangles), triangles_mean=float(np.mean(triangles)),
                   triangles_max=max(triangles), final_per_level=per_level[-1]),
         lod=dict(refines=refines, merges=merges),
-        series=dict(frame_time=frame_time, triangles=triangles,
+        series=dict(frame_time=frame_time, frame_wall=frame_wall, triangles=triangles,
                     per_level=per_level_array.tolist(), step_time=step_time,
                     step_ms=step_ms, lod_ms=lod_ms, solve_ms=solve_ms,
                     rtf_time=rtf_time, rtf=rtf_series))
@@ -240,12 +241,6 @@ def plot_analysis(result: dict, png: Path) -> Path:
 
 
 # -- replay -------------------------------------------------------------------------
-@dataclass
-class _Segment:
-    scene: dict
-    events: list = field(default_factory=list)
-
-
 def _apply(sim, event: dict) -> None:
     kind = event["kind"]
     if kind == "grasp_target":

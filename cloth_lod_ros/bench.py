@@ -582,7 +582,7 @@ def _verdict_sentences(rows: list[dict], key: str, what: str) -> str:
                      "it (more accurate at equal cost)"
                      + (": " + ", ".join(f"{name(c)} {c['curve_ratio']:.2g}×" for c in below)
                         if below else "")
-                     + (f"; above it: " + ", ".join(f"{name(c)} {c['curve_ratio']:.2g}×"
+                     + ("; above it: " + ", ".join(f"{name(c)} {c['curve_ratio']:.2g}×"
                                                     for c in above) if above else "")
                      + ".")
     return "".join(parts)

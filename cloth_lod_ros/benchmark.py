@@ -9,7 +9,6 @@ and compared by RMS and maximum 3-D distance.
 from __future__ import annotations
 
 import os
-import time as _time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np

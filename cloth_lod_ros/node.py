@@ -22,7 +22,6 @@ session: inputs as applied, outputs as published, and the scene and parameters
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import threading

@@ -9,7 +9,6 @@ its own process, driven by other processes, with their own ROS_DOMAIN_ID
 import errno
 import json
 import os
-import shutil
 import signal
 import struct
 import subprocess
@@ -370,9 +369,12 @@ def test_node_and_headless_bags_analyse_the_same_way(observer, headless_bag, tmp
         assert a["scene"] == "hang_two_corners" and a["segments"] == 1
         assert a["steps"]["count"] == len(a["series"]["step_ms"]) > 30
         assert a["lod"]["refines"] > 0 and a["real_time_factor"]["overall"] > 0
-    # The node paces itself to the wall clock: never (much) faster than real time.
-    # (How much slower depends on the machine's load, so no lower bound here.)
-    assert a_node["real_time_factor"]["overall"] < 1.1
+    # The node paces itself to the wall clock: its simulated time never runs
+    # ahead of the wall time since it started (it may lag under load, and then
+    # catch up, so the real-time factor of a window can exceed 1).
+    series = a_node["series"]
+    h = a_node["time_step"]
+    assert all(t <= w + h for t, w in zip(series["frame_time"], series["frame_wall"]))
     assert replay(bag)["identical"]
 
 

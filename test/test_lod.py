@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cloth_lod_ros.config import SceneError, load_scene, scene_from_dict, scene_to_dict
+from cloth_lod_ros.config import SceneError, load_scene, scene_from_dict
 from cloth_lod_ros.forces import precompute
 from cloth_lod_ros.hierarchy import Merge, Split
 from cloth_lod_ros.lod import curvature_estimate, hinge_measures
