@@ -941,6 +941,7 @@ def run(args) -> int:
     Returns 0 on success, 2 for bad arguments or scenes, 3 if a run failed.
     """
     from .config import SceneError, find_scene_file, load_scene
+    from .metrics import material_grid
 
     args._out_given = args.out is not None
     if args.out is None:
@@ -976,9 +977,7 @@ def run(args) -> int:
     duration = round(args.duration / h) * h
     times = [round(duration * f / h) * h for f in (0.25, 0.5, 1.0)]
     times = sorted({t for t in times if t > 0})
-    grid = np.linspace(0.0, 1.0, args.grid)
-    points = np.array([[u * scene.cloth.width, v * scene.cloth.height]
-                       for v in grid for u in grid])
+    points = material_grid(scene.cloth.width, scene.cloth.height, args.grid)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     base_spec = dict(scene=scene_arg, points=points.tolist(), times=times, duration=duration,

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .config import load_scene
-from .metrics import rms_and_max_distance
+from .metrics import material_grid, rms_and_max_distance
 from .sim import ClothSim
 
 __all__ = ["RunSummary", "compare_adaptive_uniform"]
@@ -109,9 +109,7 @@ def compare_adaptive_uniform(scene_name: str, level: int | None = None,
         times = [sim_time / 4, sim_time / 2, sim_time]
     times = [round(t / h) * h for t in times if 0 < t <= sim_time + 1e-12]
     cloth = uniform_scene.cloth
-    us = np.linspace(0.0, cloth.width, grid)
-    vs = np.linspace(0.0, cloth.height, grid)
-    points = np.array([[u, v] for v in vs for u in us])
+    points = material_grid(cloth.width, cloth.height, grid)
     uniform = _run(uniform_scene, points, times, "reference" if reference else "uniform")
     adaptive = _run(adaptive_scene, points, times, "candidate" if candidate else "adaptive")
     side = max(cloth.width, cloth.height)

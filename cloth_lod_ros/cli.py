@@ -183,6 +183,7 @@ class _HeadlessRecording:
         self.start_ns = time.time_ns()
         self.wall_start = wall_start
         self.next_time = 0.0
+        self.recorded_step = -1               # sim.step_count of the last recorded frame
         self.recorder.start(sim, {"command": "cloth-lod run", "scene": args.scene,
                                   "overrides": overrides}, 21, self.start_ns)
         self._record()
@@ -195,6 +196,7 @@ class _HeadlessRecording:
                   "real_time_factor": f"{sim.time / max(wall, 1e-9):.3f}",
                   "recording": f"on: {self.recorder.path}"}
         self.recorder.record_frame(self.frames.build(sim, divmod(t_ns, 10**9), values), t_ns)
+        self.recorded_step = sim.step_count
         self.next_time += self.interval
 
     def wrap(self, progress):
@@ -205,7 +207,7 @@ class _HeadlessRecording:
         return callback
 
     def close(self) -> None:
-        if self.sim.stats and self.sim.stats[-1].step_index + 1 != self.frames._next_step:
+        if self.sim.step_count != self.recorded_step:
             self._record()                      # the final state, if not just recorded
         self.recorder.close()
 

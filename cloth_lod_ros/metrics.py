@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["PointLocator", "rms_and_max_distance"]
+__all__ = ["PointLocator", "rms_and_max_distance", "material_grid"]
 
 
 class PointLocator:
@@ -89,3 +89,12 @@ def rms_and_max_distance(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """RMS and maximum of ``|a_i − b_i|`` over ``(m, 3)`` point sets, in m."""
     dist = np.linalg.norm(np.asarray(a) - np.asarray(b), axis=1)
     return float(np.sqrt(np.mean(dist**2))), float(dist.max())
+
+
+def material_grid(width: float, height: float, resolution: int) -> np.ndarray:
+    """``(resolution², 2)`` material points (m) evenly covering a ``width × height``
+    cloth, row-major in v then u (the layout of ``cloth/grid``): the fixed
+    sample points at which runs and recordings are compared."""
+    us = np.linspace(0.0, width, resolution)
+    vs = np.linspace(0.0, height, resolution)
+    return np.stack(np.meshgrid(us, vs), axis=-1).reshape(-1, 2)

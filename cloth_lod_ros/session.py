@@ -38,6 +38,7 @@ from .bag import BagError, BagWriter, qos_profiles_yaml
 from .config import scene_to_dict
 from .markers import (CUBE, DELETEALL, MarkerSpec, cloth_markers, obstacle_markers,
                       serialize_marker_array, serialize_point_cloud, unique_edges)
+from .metrics import material_grid
 
 __all__ = ["FrameBuilder", "SessionRecorder", "grid_uv", "OUTPUT_TYPES", "SESSION_FORMAT"]
 
@@ -63,9 +64,7 @@ def package_version() -> str:
 
 def grid_uv(scene, resolution: int) -> np.ndarray:
     """``(resolution², 2)`` material points (m) of ``cloth/grid``, row-major in v then u."""
-    us = np.linspace(0.0, scene.cloth.width, resolution)
-    vs = np.linspace(0.0, scene.cloth.height, resolution)
-    return np.stack(np.meshgrid(us, vs), axis=-1).reshape(-1, 2)
+    return material_grid(scene.cloth.width, scene.cloth.height, resolution)
 
 
 class FrameBuilder:

@@ -264,11 +264,16 @@ class ImplicitEulerSolver:
         # Held particles: exactly on target (the velocity above agrees to rounding).
         new_x[held] = targets
         new_v[held] = target_velocity
-        self._previous_dv = result.dv
+        self._keep_warm_start(result.dv)
         report = SolveReport(result.iterations, result.residual, result.converged,
                              1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2),
                              len(contacts) if contacts is not None else 0, released)
         return ClothState(new_x, new_v, state.time + h), report
+
+    def _keep_warm_start(self, dv: np.ndarray) -> None:
+        """Start the next CG solve from ``dv`` (``(n, 3)`` m/s), unless it is not
+        finite (a rejected step's NaN would spread into the retry)."""
+        self._previous_dv = dv if np.all(np.isfinite(dv)) else None
 
     def _solve(self, matrix, rhs, constraints):
         if self.config.method == "direct":
@@ -318,7 +323,7 @@ class ImplicitEulerSolver:
                                  _merge_constraints(pinned, contacts.indices, projectors,
                                                     prescribed))
             iterations += result.iterations
-            self._previous_dv = result.dv          # warm start for the next round
+            self._keep_warm_start(result.dv)       # warm start for the next round
             if attempt == rounds - 1:
                 break
             reaction = ((matrix @ result.dv.ravel()).reshape(-1, 3) - step_rhs)[contacts.indices]
@@ -696,8 +701,6 @@ class ClothSim:
         new_state, report, contacts = self._solve_step(state, held, h)
         if depth >= self.max_substep_depth or self._acceptable(state, new_state):
             return new_state, report, contacts, 1
-        if not np.all(np.isfinite(self.solver._previous_dv)):
-            self.solver._previous_dv = None         # a NaN warm start would spread
         indices, targets = held
         halfway = (indices, 0.5 * (state.positions[indices] + targets))
         middle, first, _, n_first = self._advance(state, halfway, 0.5 * h, depth + 1)

@@ -20,13 +20,14 @@ import numpy as np
 import pytest
 import yaml
 
-from test_node import Running, driver, env  # noqa: F401  (sets the ROS environment first)
+# The node tests' scene (two grasps), ROS fixtures and process helpers; importing
+# test_node first also sets the isolated ROS environment.
+from test_node import Running, driver, env, observer, scene_file  # noqa: F401
 
 import rclpy  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
-from rclpy.node import Node  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
@@ -34,28 +35,6 @@ from cloth_lod_ros import bag as bagmod  # noqa: E402
 from cloth_lod_ros.bag import BagError, BagReader, recover  # noqa: E402
 from cloth_lod_ros.bagtools import analyze, replay  # noqa: E402
 from cloth_lod_ros.cli import main as cli  # noqa: E402
-
-REPO = Path(__file__).resolve().parent.parent
-SCENE = """
-name: bag_test
-cloth: {width: 1.0, height: 1.0, base_blocks: [4, 4], level: 5, origin: [0, 0, 1]}
-material: {air_drag: 1.0}
-grasps:
-  - {name: hand, uv: [0.5, 1.0], close_time: 0.0, max_speed: 2.0}
-  - {name: other, uv: [0.0, 1.0], close_time: 0.0}
-simulation: {time_step: 0.02, duration: 100.0}
-lod: {enabled: true, initial_level: 2}
-"""
-
-
-@pytest.fixture(scope="module")
-def observer():
-    rclpy.init()
-    node = Node("bag_test_observer")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
-
 
 @pytest.fixture(scope="module")
 def headless_bag(tmp_path_factory):
@@ -298,13 +277,6 @@ def test_replay_detects_a_different_simulation(headless_bag, tmp_path):
 
 
 # -- the node -------------------------------------------------------------------------------------
-@pytest.fixture
-def scene_file(tmp_path):
-    path = tmp_path / "bag_test.yaml"
-    path.write_text(SCENE)
-    return path
-
-
 def _set_parameter(node, name, value):
     request = SetParameters.Request(parameters=[Parameter(
         name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value))])

@@ -171,3 +171,11 @@ def test_rms_and_max_distance_of_a_translation(points, shift):
     assert rms == pytest.approx(norm, rel=1e-12, abs=1e-12)
     assert mx == pytest.approx(norm, rel=1e-12, abs=1e-12)
     assert rms <= mx + 1e-15
+
+
+def test_material_grid_is_row_major_in_v_then_u_and_spans_the_cloth():
+    from cloth_lod_ros.metrics import material_grid
+    grid = material_grid(2.0, 1.0, 3).reshape(3, 3, 2)       # [row v, column u]
+    np.testing.assert_array_equal(grid[0, :, 0], [0.0, 1.0, 2.0])
+    np.testing.assert_array_equal(grid[:, 0, 1], [0.0, 0.5, 1.0])
+    np.testing.assert_array_equal(grid[2, 2], [2.0, 1.0])
