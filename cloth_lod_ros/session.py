@@ -301,3 +301,56 @@ class SessionRecorder:
         except BagError as exc:
             self.failed = self.failed or str(exc)
             log.error("closing the recording failed: %s", exc)
+
+
+def _benchmark(levels=(6, 8), frames: int = 30) -> None:
+    """Print frame build time, recording cost and bag size per simulated second
+    (``python -m cloth_lod_ros.session [OUT_DIR]``).
+
+    For each level, the uniform ``hang_two_corners`` cloth is stepped ``frames``
+    times from its start and a frame is built after every other step (30 frames
+    per simulated second at h = 1/60 s; distinct frames, so compression sees real
+    data).  Each compression then records those frames: the caller's cost
+    (queueing) and the background thread's (compress + write, measured as the
+    drain after queueing), per frame, and the bag's size per simulated second.
+    """
+    import os
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from .config import load_scene
+    from .sim import ClothSim
+    out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="cloth_bag_"))
+    for level in levels:
+        sim = ClothSim(load_scene("hang_two_corners", ["lod.enabled=false", f"cloth.level={level}"]))
+        builder = FrameBuilder("world", 21)
+        built, build_ms = [], []
+        for k in range(2 * frames):
+            sim.step()
+            if k % 2:
+                start = _time.perf_counter()
+                built.append(builder.build(sim, (k, 0)))
+                build_ms.append(1e3 * (_time.perf_counter() - start))
+        print(f"level {level}: {sim.mesh.triangle_count} triangles, frame built in "
+              f"{np.median(build_ms):.1f} ms (median)")
+        simulated = len(built) / 30.0
+        for compression in ("none", "zstd", "lz4"):
+            recorder = SessionRecorder(out / f"level{level}_{compression}", "/", compression)
+            recorder.start(sim)
+            start = _time.perf_counter()
+            for k, frame in enumerate(built):
+                recorder.record_frame(frame, 10**9 + k * 10**9 // 30)
+            queue_ms = 1e3 * (_time.perf_counter() - start) / len(built)
+            start = _time.perf_counter()
+            recorder.close()                   # waits for the writer thread
+            write_ms = 1e3 * (_time.perf_counter() - start) / len(built)
+            size = os.path.getsize(recorder.writer.mcap_path)
+            print(f"  {compression:5s} queue {queue_ms:.3f} ms/frame, compress + write "
+                  f"{write_ms:.2f} ms/frame (background), {size / len(built) / 1e3:.0f} "
+                  f"kB/frame, {size / simulated / 1e6:.1f} MB per simulated s")
+    print(f"bags in {out}")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    _benchmark()
