@@ -44,8 +44,8 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
-            "cloth-lod = cloth_lod_ros.cli:main",
-            "cloth_lod_node = cloth_lod_ros.node:main",
+            "cloth-lod = cloth_lod_ros.tools.cli:main",
+            "cloth_lod_node = cloth_lod_ros.ros.node:main",
         ],
     },
 )

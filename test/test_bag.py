@@ -31,10 +31,11 @@ from rcl_interfaces.srv import SetParameters  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
-from cloth_lod_ros import bag as bagmod  # noqa: E402
-from cloth_lod_ros.bag import BagError, BagReader, recover  # noqa: E402
-from cloth_lod_ros.bagtools import analyze, replay  # noqa: E402
-from cloth_lod_ros.cli import main as cli  # noqa: E402
+from cloth_lod_ros.bag import rosbag as bagmod  # noqa: E402
+from cloth_lod_ros.bag.rosbag import BagError, BagReader, recover  # noqa: E402
+from cloth_lod_ros.bag.analysis import analyze  # noqa: E402
+from cloth_lod_ros.bag.replay import replay  # noqa: E402
+from cloth_lod_ros.tools.cli import main as cli  # noqa: E402
 
 @pytest.fixture(scope="module")
 def headless_bag(tmp_path_factory):
@@ -397,7 +398,7 @@ def test_play_delivers_the_recorded_messages_in_order_to_another_process(
         lambda msg: received.append(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec), 100)
     grids = []
     sub_grid = observer.create_subscription(PointCloud2, "/cloth/grid", grids.append, 100)
-    proc = subprocess.Popen([sys.executable, "-m", "cloth_lod_ros.cli", "play", str(headless_bag),
+    proc = subprocess.Popen([sys.executable, "-m", "cloth_lod_ros.tools.cli", "play", str(headless_bag),
                              "--rate", "2", "--delay", "4", "--topics", "/cloth/lod_stats",
                              "/cloth/grid"], env=env(), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)

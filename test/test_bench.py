@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from cloth_lod_ros import bench
+from cloth_lod_ros.tools import bench
 
 REPO = Path(__file__).resolve().parent.parent
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -147,7 +147,7 @@ def test_bad_arguments_exit_2_with_a_message(tmp_path, capsys, extra, message):
 def test_unknown_scene_from_the_command_line(tmp_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-    proc = subprocess.run([sys.executable, "-m", "cloth_lod_ros.bench", "no_such_scene",
+    proc = subprocess.run([sys.executable, "-m", "cloth_lod_ros.tools.bench", "no_such_scene",
                            "--quick", "--out", str(tmp_path)],
                           capture_output=True, text=True, env=env, timeout=60)
     assert proc.returncode == 2

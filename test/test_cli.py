@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cloth_lod_ros import cli
-from cloth_lod_ros.config import load_scene
+from cloth_lod_ros.tools import cli
+from cloth_lod_ros.sim.config import load_scene
 from cloth_lod_ros.sim import ClothSim, SimulationError, StepStats
 
 REPO = Path(__file__).resolve().parent.parent
@@ -217,8 +217,8 @@ def test_scenes_lists_builtin(capsys):
 
 
 def test_render_cloth_with_levels_and_pins(tmp_path):
-    from cloth_lod_ros.plotting import render_cloth
-    from cloth_lod_ros.mesh48 import base_mesh, refine_uniform
+    from cloth_lod_ros.tools.plotting import render_cloth
+    from cloth_lod_ros.sim.mesh48 import base_mesh, refine_uniform
     mesh = refine_uniform(base_mesh(1.0, 1.0, 2, 2), 2)
     x = np.column_stack([mesh.uv, 0.1 * np.sin(3 * mesh.uv[:, 0])])
     levels = mesh.levels.copy()
@@ -233,7 +233,7 @@ def test_render_cloth_with_levels_and_pins(tmp_path):
 
 def test_console_script_subprocess(tmp_path):
     script = Path(sys.executable).parent / "cloth-lod"
-    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "cloth_lod_ros.cli"]
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "cloth_lod_ros.tools.cli"]
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(
         p for p in (str(REPO), env.get("PYTHONPATH", "")) if p)

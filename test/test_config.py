@@ -11,7 +11,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cloth_lod_ros.config import (
+from cloth_lod_ros.sim.config import (
     SceneConfig, SceneError, apply_overrides, builtin_scene_names, find_scene_file,
     load_scene, scene_from_dict, scene_to_dict,
 )

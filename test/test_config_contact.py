@@ -9,10 +9,10 @@ import copy
 import numpy as np
 import pytest
 
-from cloth_lod_ros.config import (
+from cloth_lod_ros.sim.config import (
     SceneError, builtin_scene_names, load_scene, scene_from_dict,
 )
-from cloth_lod_ros.contact import Box, Cylinder, Plane, Sphere, make_obstacle
+from cloth_lod_ros.sim.contact import Box, Cylinder, Plane, Sphere, make_obstacle
 
 
 def base_scene() -> dict:

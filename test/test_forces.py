@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cloth_lod_ros.forces import evaluate, hinge_angles, precompute
-from cloth_lod_ros.mesh48 import base_mesh, refine_uniform
-from cloth_lod_ros.solver import SparsePattern
+from cloth_lod_ros.sim.forces import evaluate, hinge_angles, precompute
+from cloth_lod_ros.sim.mesh48 import base_mesh, refine_uniform
+from cloth_lod_ros.sim.linear import SparsePattern
 
 
 def material(ks=100.0, ksh=20.0, kb=1e-2, bs=0.0, bsh=0.0, bb=0.0):

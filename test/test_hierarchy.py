@@ -16,9 +16,9 @@ from hypothesis.stateful import (
     RuleBasedStateMachine, initialize, invariant, rule,
 )
 
-from cloth_lod_ros import mesh48
-from cloth_lod_ros.hierarchy import Hierarchy48, Merge, Split
-from cloth_lod_ros.mesh48 import (
+from cloth_lod_ros.sim import mesh48
+from cloth_lod_ros.sim.hierarchy import Hierarchy48, Merge, Split
+from cloth_lod_ros.sim.mesh48 import (
     MeshError, base_mesh, lumped_masses, triangle_rest_areas,
 )
 

@@ -5,11 +5,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cloth_lod_ros.config import SceneError, load_scene, scene_from_dict
-from cloth_lod_ros.forces import precompute
-from cloth_lod_ros.hierarchy import Merge, Split
-from cloth_lod_ros.lod import curvature_estimate, hinge_measures
-from cloth_lod_ros.metrics import rms_and_max_distance
+from cloth_lod_ros.sim.config import SceneError, load_scene, scene_from_dict
+from cloth_lod_ros.sim.forces import precompute
+from cloth_lod_ros.sim.hierarchy import Merge, Split
+from cloth_lod_ros.sim.lod import curvature_estimate, hinge_measures
+from cloth_lod_ros.sim.metrics import rms_and_max_distance
 from cloth_lod_ros.sim import ClothSim
 
 G = np.array([0.0, 0.0, -9.81])
@@ -48,7 +48,7 @@ def test_deviation_is_the_papers_formula(theta, height):
 
 def test_deviation_of_a_cylinder_is_its_sagitta():
     """On a cylinder of radius R the paper's d is the arc's distance from the flat pair."""
-    from cloth_lod_ros.mesh48 import base_mesh, refine_uniform
+    from cloth_lod_ros.sim.mesh48 import base_mesh, refine_uniform
     mesh = refine_uniform(base_mesh(1.0, 1.0, 4, 4), 4)
     radius = 0.3
     u, v = mesh.uv[:, 0], mesh.uv[:, 1]
@@ -252,7 +252,7 @@ def test_split_then_merge_leaves_the_simulation_state_unchanged():
 
 def test_criterion_reuses_the_force_evaluation_exactly():
     """The step hands its own force evaluation to the criterion: same numbers."""
-    from cloth_lod_ros.forces import evaluate
+    from cloth_lod_ros.sim.forces import evaluate
     sim = ClothSim(load_scene("hang_two_corners", ["cloth.level=4"]))
     for _ in range(20):
         sim.step()

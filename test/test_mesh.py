@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cloth_lod_ros.mesh48 import (
+from cloth_lod_ros.sim.mesh48 import (
     MeshError, RestMesh, base_mesh, build_hinges, check_mesh, lumped_masses,
     refine_uniform, triangle_rest_areas,
 )

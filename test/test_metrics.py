@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cloth_lod_ros.mesh48 import base_mesh, refine_uniform
-from cloth_lod_ros.metrics import PointLocator, rms_and_max_distance
+from cloth_lod_ros.sim.mesh48 import base_mesh, refine_uniform
+from cloth_lod_ros.sim.metrics import PointLocator, rms_and_max_distance
 
 SHAPES = {
     "square": (1.0, 1.0, 4, 4),
@@ -174,7 +174,7 @@ def test_rms_and_max_distance_of_a_translation(points, shift):
 
 
 def test_material_grid_is_row_major_in_v_then_u_and_spans_the_cloth():
-    from cloth_lod_ros.metrics import material_grid
+    from cloth_lod_ros.sim.metrics import material_grid
     grid = material_grid(2.0, 1.0, 3).reshape(3, 3, 2)       # [row v, column u]
     np.testing.assert_array_equal(grid[0, :, 0], [0.0, 1.0, 2.0])
     np.testing.assert_array_equal(grid[:, 0, 1], [0.0, 0.5, 1.0])

@@ -72,7 +72,7 @@ class Running:
     """A cloth_lod_node process and the latest messages it published."""
 
     def __init__(self, observer, scene, *params):
-        args = [sys.executable, "-m", "cloth_lod_ros.node", "--ros-args",
+        args = [sys.executable, "-m", "cloth_lod_ros.ros.node", "--ros-args",
                 "-p", f"scene:={scene}", "-p", f"grid_resolution:={GRID}",
                 "-p", "publish_rate:=25.0"]
         for p in params:

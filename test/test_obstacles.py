@@ -16,8 +16,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from cloth_lod_ros.config import scene_from_dict
-from cloth_lod_ros.contact import (
+from cloth_lod_ros.sim.config import scene_from_dict
+from cloth_lod_ros.sim.contact import (
     Box, ContactSet, Cylinder, Plane, Sphere, find_contacts, make_obstacle,
     quaternion_matrix,
 )
@@ -422,7 +422,7 @@ def test_make_obstacle_refuses_an_unknown_type():
 def test_rounded_box_edges_are_arcs():
     """A box with rounded edges: points off an edge are at (distance to the edge
     axis − rounding), and the normal turns smoothly from the top to the side."""
-    from cloth_lod_ros.contact import Box
+    from cloth_lod_ros.sim.contact import Box
     box = Box("t", 0.2, np.array([0.0, 0.0, -0.4]), np.array([0.5, 0.6, 0.4]),
               np.array([0.0, 0.0, 0.0, 1.0]), rounding=0.03)
     axis_point = np.array([0.47, 0.0, -0.03])            # centre of the edge's arc

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cloth_lod_ros.config import load_scene, scene_from_dict, scene_to_dict
+from cloth_lod_ros.sim.config import load_scene, scene_from_dict, scene_to_dict
 from cloth_lod_ros.sim import ClothSim, SimulationError
 
 G = np.array([0.0, 0.0, -9.81])

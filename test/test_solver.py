@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from cloth_lod_ros.forces import evaluate, precompute
-from cloth_lod_ros.mesh48 import base_mesh, lumped_masses, refine_uniform
-from cloth_lod_ros.solver import (Constraints, SparsePattern, filtered_pcg,
+from cloth_lod_ros.sim.forces import evaluate, precompute
+from cloth_lod_ros.sim.mesh48 import base_mesh, lumped_masses, refine_uniform
+from cloth_lod_ros.sim.linear import (Constraints, SparsePattern, filtered_pcg,
                                   solve_projected_direct)
 
 MATERIAL = SimpleNamespace(stretch_stiffness=2000.0, shear_stiffness=200.0,

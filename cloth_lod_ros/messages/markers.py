@@ -240,7 +240,7 @@ def _quaternion_from_z(axis: np.ndarray) -> np.ndarray:
 
 def obstacle_markers(obstacles, frame_id: str, stamp: tuple = (0, 0),
                      first_id: int = 10) -> list[MarkerSpec]:
-    """One marker per obstacle config (:class:`~cloth_lod_ros.config.ObstacleConfig`).
+    """One marker per obstacle config (:class:`~cloth_lod_ros.sim.config.ObstacleConfig`).
 
     Planes are drawn as a thin 2 m square around their point; cylinders and discs
     as CYLINDER, spheres as SPHERE, boxes as CUBE (rounding not drawn).
@@ -303,10 +303,10 @@ def serialize_point_cloud(points: np.ndarray, frame_id: str, stamp: tuple = (0, 
 
 
 def _benchmark(levels=(6, 8), repeats: int = 10) -> None:
-    """Print marker and point-cloud build times (``python -m cloth_lod_ros.markers``)."""
+    """Print marker and point-cloud build times (``python -m cloth_lod_ros.messages.markers``)."""
     import time
 
-    from .mesh48 import base_mesh, refine_uniform
+    from ..sim.mesh48 import base_mesh, refine_uniform
     for level in levels:
         mesh = refine_uniform(base_mesh(1.0, 1.0, 4, 4), level)
         x = np.column_stack([mesh.uv, 0.1 * np.sin(3 * mesh.uv[:, 0])])

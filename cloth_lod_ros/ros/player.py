@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import time
 
-from .bag import BagError, BagReader
-from .bagtools import message_class
+from ..bag.rosbag import BagError, BagReader
+from ..bag.analysis import message_class
 
 __all__ = ["play"]
 
@@ -40,7 +40,7 @@ def play(path, rate: float = 1.0, loop: bool = False, topics=None,
         loop: start again after the last message.
         topics: only these topics (as recorded, e.g. ``/cloth/markers``).
         delay: s to wait after creating the publishers (discovery) before the first message.
-        on_publish: called with each published :class:`~cloth_lod_ros.bag.BagMessage`.
+        on_publish: called with each published :class:`~cloth_lod_ros.bag.rosbag.BagMessage`.
 
     Raises:
         BagError: unreadable bag, unknown topic or message type, bad rate.

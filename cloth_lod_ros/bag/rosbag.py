@@ -1,4 +1,4 @@
-"""rosbag2-compatible MCAP bags: write, read and recover (DESIGN.md §7).
+"""rosbag2-compatible MCAP bags: write, read and recover (design §7).
 
 A bag is a directory ``<name>/`` holding ``metadata.yaml`` and ``<name>_0.mcap``,
 laid out as rosbag2 Jazzy's MCAP storage plugin writes it:

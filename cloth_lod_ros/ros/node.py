@@ -1,8 +1,8 @@
-"""``cloth_lod_node``: the adaptive cloth simulator as a ROS 2 node (DESIGN.md §6).
+"""``cloth_lod_node``: the adaptive cloth simulator as a ROS 2 node (design §6).
 
 Thin by design: declare parameters, build a :class:`~cloth_lod_ros.sim.ClothSim`,
 wire topics and services.  Inputs (grasp poses, open/close) go straight into the
-simulator; outputs are built vectorised by :mod:`cloth_lod_ros.markers`.
+simulator; outputs are built vectorised by :mod:`cloth_lod_ros.messages.markers`.
 
 Topics (relative names, so a namespace or remap moves them all):
   in:  ``grasp/<name>/pose`` (geometry_msgs/PoseStamped) for each grasp of the scene
@@ -16,7 +16,7 @@ Services: ``grasp/<name>/close`` (std_srvs/SetBool: true holds, false releases),
 
 Recording (parameter ``record`` or the service) writes a rosbag2 MCAP bag of the
 session: inputs as applied, outputs as published, and the scene and parameters
-(:mod:`cloth_lod_ros.session`).  A recording failure is logged and reported in
+(:mod:`cloth_lod_ros.bag.recorder`).  A recording failure is logged and reported in
 ``cloth/lod_stats``; the simulation goes on.
 """
 
@@ -43,10 +43,11 @@ from visualization_msgs.msg import MarkerArray
 
 from rclpy.serialization import serialize_message
 
-from .bag import COMPRESSIONS, BagError
-from .config import SceneError, load_scene, scene_to_dict
-from .session import FrameBuilder, SessionRecorder
-from .sim import ClothSim, SimulationError
+from ..bag.rosbag import COMPRESSIONS, BagError
+from ..sim.config import SceneError, load_scene, scene_to_dict
+from ..bag.recorder import SessionRecorder
+from ..messages.frames import FrameBuilder
+from ..sim import ClothSim, SimulationError
 
 __all__ = ["ClothLodNode", "main"]
 

@@ -4,7 +4,7 @@ Everything here is vectorised over triangles and hinges (no per-element Python
 loop).  Units are SI: positions in m, velocities in m/s, forces in N, energies
 in J.  References: Baraff & Witkin, "Large steps in cloth simulation" (1998),
 §4.2–4.5 (conditions, forces, damping), §5 (implicit step); the seed paper §5
-(bend condition C = θ); DESIGN.md §2 (energies as discretised densities).
+(bend condition C = θ); design §2 (energies as discretised densities).
 
 Conditions (``A`` = rest area of the triangle in m², ``w_u``/``w_v`` = the
 deformation gradient's columns, see :func:`precompute`):
@@ -24,7 +24,7 @@ deformation gradient's columns, see :func:`precompute`):
 Damping is Rayleigh-like along each condition (BW §4.5):
 ``f_d = −β k ∇C Ċ`` with ``β`` in seconds, plus air drag ``−c_air m v``.
 
-Jacobians (what the implicit solve keeps; DESIGN.md §2–3):
+Jacobians (what the implicit solve keeps; design §2–3):
 
 * stretch: full ``−k (∇C ∇Cᵀ + C ∇²C)`` but with ``C`` clamped to ``≥ 0`` in the
   second term (a compressed triangle would make it indefinite);

@@ -217,7 +217,7 @@ def solve_projected_direct(matrix, rhs: np.ndarray,
 
     Writes ``Δv = z + y`` with ``y`` in the free subspace and solves
     ``(S A S + (I − S)) y = S (b − A z)``, which is SPD and equivalent to the
-    filtered problem.  Uses SuperLU in symmetric mode (DESIGN.md §3).
+    filtered problem.  Uses SuperLU in symmetric mode (design §3).
     """
     n = rhs.shape[0]
     z = constraints.start(np.zeros_like(rhs))

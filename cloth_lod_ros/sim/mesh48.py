@@ -1,4 +1,4 @@
-"""4-8 bisection meshes of a rectangular cloth (paper §3, DESIGN.md §1, §4).
+"""4-8 bisection meshes of a rectangular cloth (paper §3, design §1, §4).
 
 A 4-8 mesh starts from a grid of square *blocks*, each split by one diagonal into
 two right isosceles triangles; the diagonals alternate like a chequerboard so that

@@ -2,7 +2,7 @@
 
 ``sample(uv)`` evaluates the surface at arbitrary material coordinates by
 barycentric interpolation in the rest triangle that contains each point
-(DESIGN.md §5), which lets meshes of different resolution be compared at the
+(design §5), which lets meshes of different resolution be compared at the
 same material points.
 """
 

@@ -1,6 +1,6 @@
 """Level-of-detail policy: when to refine and when to simplify (paper §5.1, §5.4).
 
-Policy only; the mechanism is :class:`cloth_lod_ros.hierarchy.Hierarchy48`.
+Policy only; the mechanism is :class:`cloth_lod_ros.sim.hierarchy.Hierarchy48`.
 
 **Criterion** (paper §5.1, Fig. 6).  For each interior edge, θ is the angle
 between the two triangle normals and L the mean distance of the two opposite
@@ -14,7 +14,7 @@ flat pair from that arc is ``d = L (1 − cos(θ/2)) / (2 sin(θ/2))``, which is
 * **Simplify** a split (merge its 4, or 2 on the border, children) only when:
   (a) every hinge touching its midpoint particle has ``d < coarsen_threshold``;
   (b) the hinges are *settled*.  The paper asks for ∂C/∂x ≈ 0, but that gradient
-  has magnitude ~1/height even on a flat sheet (DESIGN.md §2).  What is small on
+  has magnitude ~1/height even on a flat sheet (design §2).  What is small on
   a settled hinge is the rate ``dθ/dt = ∂θ/∂x · v`` and the bend force
   ``k_b c_e θ ∂θ/∂x``, so both are tested (``max_hinge_rate``, ``max_bend_force``);
   (c) each child triangle has existed for at least ``min_lifetime`` seconds
@@ -64,7 +64,7 @@ def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
     """Evaluate the criterion on every hinge (vectorised).
 
     The heights come from the angle gradient: ``|∂θ/∂o_k| = 1/h_k``.  With an
-    ``evaluation`` of the same state (:func:`cloth_lod_ros.forces.evaluate`),
+    ``evaluation`` of the same state (:func:`cloth_lod_ros.sim.forces.evaluate`),
     its hinge angles and gradients are reused instead of recomputed.
     """
     hv = elements.hinge_vertices
@@ -94,7 +94,7 @@ class LodPolicy:
     """Decides refinements and simplifications from the current state.
 
     Args:
-        config: :class:`cloth_lod_ros.config.LodConfig`.
+        config: :class:`cloth_lod_ros.sim.config.LodConfig`.
         bend_stiffness: k_b of the material, N·m (for the bend-force test).
     """
 

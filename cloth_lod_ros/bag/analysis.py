@@ -1,14 +1,10 @@
-"""Analyse and replay recorded sessions (DESIGN.md §7).
+"""Analyse recorded sessions (design §7).
 
 * :func:`analyze`: step-time statistics, real-time factor, mesh size and LOD
   activity from ``cloth/lod_stats`` (whose ``recent_*`` fields carry every step),
   plus PNG plots.
-* :func:`replay`: rebuild the simulator from ``/cloth/session``, apply every
-  ``/cloth/inputs`` event before the step it was applied before in the
-  recording, and compare each recorded frame with the replayed state: the
-  ``cloth/grid`` samples (the same material points whatever the mesh; float32
-  as published), the triangle count, and - on the last frame of each segment -
-  every surface triangle corner of ``cloth/markers`` (float64, bit for bit).
+* :func:`message_class`, :func:`read_session`, :func:`topic_named`: what
+  :mod:`~cloth_lod_ros.bag.replay` and the player share.
 
 Messages are decoded with rclpy's deserializer; nothing here needs a running ROS graph.
 """
@@ -22,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .bag import BagError, BagReader
+from .rosbag import BagError, BagReader
 
-__all__ = ["analyze", "format_analysis", "plot_analysis", "replay", "format_replay",
-           "read_session"]
+__all__ = ["analyze", "format_analysis", "plot_analysis", "read_session", "message_class",
+           "decode", "topic_named"]
 
 
 def message_class(type_name: str):
@@ -42,12 +38,13 @@ def message_class(type_name: str):
         raise BagError(f"message type {type_name} is not installed") from None
 
 
-def _decode(data: bytes, type_name: str):
+def decode(data: bytes, type_name: str):
+    """Deserialise CDR ``data`` of ROS type ``pkg/msg/Type`` into its rclpy message."""
     from rclpy.serialization import deserialize_message
     return deserialize_message(data, message_class(type_name))
 
 
-def _topic(reader: BagReader, relative: str) -> str | None:
+def topic_named(reader: BagReader, relative: str) -> str | None:
     """The recorded topic ending in ``relative`` (any namespace), or None."""
     matches = [t for t in reader.topics if t == "/" + relative or t.endswith("/" + relative)]
     return matches[0] if matches else None
@@ -59,11 +56,11 @@ def read_session(reader: BagReader) -> dict:
     Raises:
         BagError: no session message (not a cloth_lod_ros recording).
     """
-    topic = _topic(reader, "cloth/session")
+    topic = topic_named(reader, "cloth/session")
     if topic is not None:
         for m in reader.messages([topic]):
             try:
-                return json.loads(_decode(m.data, m.type_name).data)
+                return json.loads(decode(m.data, m.type_name).data)
             except (ValueError, TypeError) as exc:
                 raise BagError(f"{reader.path}: unreadable session message ({exc})") from None
     raise BagError(f"{reader.path}: no cloth/session message; not a cloth_lod_ros recording")
@@ -80,12 +77,12 @@ class _Frame:
 
 
 def _stats_frames(reader: BagReader) -> list[_Frame]:
-    topic = _topic(reader, "cloth/lod_stats")
+    topic = topic_named(reader, "cloth/lod_stats")
     if topic is None:
         raise BagError(f"{reader.path}: no cloth/lod_stats topic")
     frames = []
     for m in reader.messages([topic]):
-        msg = _decode(m.data, m.type_name)
+        msg = decode(m.data, m.type_name)
         if msg.status:
             frames.append(_Frame(m.time_ns, {kv.key: kv.value for kv in msg.status[0].values}))
     if not frames:
@@ -238,138 +235,3 @@ def plot_analysis(result: dict, png: Path) -> Path:
     fig.savefig(png, dpi=90)
     plt.close(fig)
     return png
-
-
-# -- replay -------------------------------------------------------------------------
-def _apply(sim, event: dict) -> None:
-    kind = event["kind"]
-    if kind == "grasp_target":
-        sim.set_grasp_target(event["grasp"], event["position"], event.get("orientation"))
-    elif kind == "grasp_close":
-        sim.close_grasp(event["grasp"])
-    elif kind == "grasp_open":
-        sim.open_grasp(event["grasp"])
-    elif kind == "parameters":
-        sim.update_parameters(event["changes"])
-    elif kind not in ("pause", "resume"):
-        raise BagError(f"unknown input kind {kind!r} at step {event['step_count']}")
-
-
-def replay(path, progress=None) -> dict:
-    """Re-simulate a recorded session and measure how far it is from the recording.
-
-    Returns:
-        A JSON-ready dict: per compared frame the simulated time, RMS and max
-        distance of the grid samples (m), and whether the triangle count matched;
-        overall maxima; ``surface_identical`` per segment (float64 corners of
-        the last recorded surface, bit for bit); ``identical`` when everything
-        compared is exactly equal.
-
-    Raises:
-        BagError: not a replayable recording (no session, or the recording
-            started after the simulation had run).
-    """
-    from .config import scene_from_dict
-    from .markers import TRIANGLE_LIST
-    from .session import grid_uv
-    from .sim import ClothSim
-    with BagReader(path) as reader:
-        session = read_session(reader)
-        wanted = {t for t in (_topic(reader, r) for r in (
-            "cloth/inputs", "cloth/grid", "cloth/markers", "cloth/lod_stats")) if t}
-        messages = list(reader.messages(sorted(wanted)))
-    if session.get("start_step_count", 0):
-        raise BagError(f"{path}: the recording starts at step {session['start_step_count']} "
-                       "of a running simulation; replay needs a recording from the start")
-    resolution = int(session["grid_resolution"])
-    sim = ClothSim(scene_from_dict(session["scene"]))
-    uv = grid_uv(sim.scene, resolution)
-    frames, segments, surface_checks = [], [], []
-    last_markers = last_grid = None
-    frame_markers = None            # the markers message of the latest compared frame
-
-    def advance(step_count: int) -> None:
-        if step_count < sim.step_count:
-            raise BagError(f"recording is not replayable: an input at step {step_count} "
-                           f"after step {sim.step_count} (did it start mid-session?)")
-        while sim.step_count < step_count:
-            sim.step()
-            if progress is not None:
-                progress(sim)
-
-    def check_surface() -> None:
-        """Compare the latest frame's surface corners (float64) bit for bit."""
-        if frame_markers is None:
-            return
-        markers = _decode(frame_markers.data, frame_markers.type_name)
-        surface = [mk for mk in markers.markers if mk.type == TRIANGLE_LIST]
-        replayed = sim.positions[sim.triangles].reshape(-1, 3)
-        recorded = np.array([[p.x, p.y, p.z] for p in surface[0].points]) if surface else None
-        surface_checks.append(bool(recorded is not None and recorded.shape == replayed.shape
-                                   and np.array_equal(recorded, replayed)))
-
-    for m in messages:
-        if m.topic.endswith("cloth/inputs"):
-            event = json.loads(_decode(m.data, m.type_name).data)
-            if event["kind"] == "reset":
-                check_surface()
-                frame_markers = None
-                segments.append(sim.step_count)
-                sim = ClothSim(scene_from_dict(event["scene"]))
-                uv = grid_uv(sim.scene, resolution)
-                continue
-            advance(int(event["step_count"]))
-            _apply(sim, event)
-        elif m.topic.endswith("cloth/markers"):
-            last_markers = m
-        elif m.topic.endswith("cloth/grid"):
-            last_grid = m
-        elif m.topic.endswith("cloth/lod_stats") and last_grid is not None:
-            msg = _decode(m.data, m.type_name)
-            values = {kv.key: kv.value for kv in msg.status[0].values}
-            step_count = int(values["step_count"])
-            advance(step_count)
-            grid = _decode(last_grid.data, last_grid.type_name)
-            recorded = np.frombuffer(bytes(grid.data), dtype="<f4").reshape(-1, 3)
-            replayed = sim.sample(uv).astype("<f4")
-            if recorded.shape != replayed.shape:
-                raise BagError(f"{path}: cloth/grid has {len(recorded)} points, the session "
-                               f"says {len(replayed)}")
-            d = np.linalg.norm(recorded.astype(float) - replayed.astype(float), axis=1)
-            frames.append(dict(time=sim.time, rms_m=float(np.sqrt(np.mean(d * d))),
-                               max_m=float(d.max()),
-                               exact=bool(np.array_equal(recorded, replayed)),
-                               triangles_match=int(values["triangles"]) == sim.mesh.triangle_count))
-            frame_markers = last_markers
-    check_surface()
-    rms = [f["rms_m"] for f in frames]
-    return dict(bag=str(path), frames=frames, frame_count=len(frames),
-                resets=len(segments),
-                max_distance_m=max((f["max_m"] for f in frames), default=0.0),
-                max_rms_m=max(rms, default=0.0),
-                all_grid_exact=all(f["exact"] for f in frames),
-                all_triangle_counts_match=all(f["triangles_match"] for f in frames),
-                surface_identical=surface_checks,
-                identical=bool(frames) and all(f["exact"] and f["triangles_match"]
-                                               for f in frames) and all(surface_checks))
-
-
-def format_replay(result: dict) -> str:
-    """Text summary of :func:`replay`."""
-    frames = result["frames"]
-    lines = [f"{result['bag']}: replayed {result['frame_count']} recorded frames "
-             f"({result['resets']} reset(s))"]
-    if frames:
-        lines.append(f"  grid distance replayed vs recorded: max {result['max_distance_m']:.3g} m, "
-                     f"worst-frame RMS {result['max_rms_m']:.3g} m")
-        picks = sorted(set(np.linspace(0, len(frames) - 1, min(len(frames), 6)).astype(int)))
-        for i in picks:
-            f = frames[i]
-            lines.append(f"    t = {f['time']:7.3f} s  RMS {f['rms_m']:.3g} m  max {f['max_m']:.3g} m"
-                         f"{'  exact' if f['exact'] else ''}")
-    lines.append(f"  triangle counts match: {result['all_triangle_counts_match']}; final surface "
-                 f"bit-identical: {result['surface_identical']}")
-    lines.append("  IDENTICAL: the replay reproduces the recording bit for bit"
-                 if result["identical"] else
-                 "  NOT identical (see the distances above)")
-    return "\n".join(lines)

@@ -1,4 +1,4 @@
-"""Analytic obstacles and particle contact (BW §5.3, §6; DESIGN.md §3).
+"""Analytic obstacles and particle contact (BW §5.3, §6; design §3).
 
 Each obstacle gives, for query points, a signed distance φ (m, negative
 inside) and the outward unit normal of the nearest surface point, vectorised.
@@ -9,7 +9,7 @@ velocity prescribed so that it ends the step exactly on the offset surface at
 is pushed out at most ``max_correction_speed``).  The
 constraint is released when the force it would need pulls the particle in
 (the solve is repeated without it).  Coulomb friction is part of the implicit
-solve (``ImplicitEulerSolver._solve_with_contacts``): from the frictionless
+solve (``integrator.ImplicitEulerSolver._solve_with_contacts``): from the frictionless
 normal impulse λ, a contact sticks (fully constrained) while its tangential
 momentum is within μλ and slips with the impulse −μλ t̂ otherwise, so the rest
 of the cloth responds to the friction in the same step.
@@ -145,7 +145,7 @@ def _any_perpendicular(a: np.ndarray) -> np.ndarray:
 
 
 def make_obstacle(cfg) -> Obstacle:
-    """Build an obstacle from :class:`cloth_lod_ros.config.ObstacleConfig`."""
+    """Build an obstacle from :class:`cloth_lod_ros.sim.config.ObstacleConfig`."""
     kind = cfg.type
     if kind == "plane":
         return Plane(cfg.name, cfg.friction, np.array(cfg.centre), np.array(cfg.normal))

@@ -1,12 +1,16 @@
 """``ClothSim``: the scriptable facade over mesh, state, inputs and solver.
 
-Data, state and operators are kept apart (DESIGN.md §9):
+Data, state and operators are kept apart (design §9):
 
-* :class:`~cloth_lod_ros.mesh48.RestMesh` + :class:`~cloth_lod_ros.forces.Elements`
-  — topology and rest state;
-* :class:`ClothState` — positions, velocities and time;
-* :class:`Pin` — inputs (material point, target path, release time);
-* :class:`ImplicitEulerSolver` — ``step(elements, masses, state, pins, h)``.
+* :class:`~cloth_lod_ros.sim.mesh48.RestMesh` + :class:`~cloth_lod_ros.sim.forces.Elements`
+  - topology and rest state;
+* :class:`~cloth_lod_ros.sim.state.ClothState` - positions, velocities and time;
+* :class:`~cloth_lod_ros.sim.pins.Pin`, :class:`~cloth_lod_ros.sim.grasps.Grasp`
+  - inputs (material point, target path, release);
+* :class:`~cloth_lod_ros.sim.integrator.ImplicitEulerSolver` -
+  ``step(elements, masses, state, pins, h)``;
+* :class:`~cloth_lod_ros.sim.hierarchy.Hierarchy48` (mechanism) and
+  :class:`~cloth_lod_ros.sim.lod.LodPolicy` (policy) - the adaptive mesh.
 
 Example::
 
@@ -18,376 +22,43 @@ Example::
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import os
 import time as _time
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from .config import SceneConfig, SceneError, load_scene
-from .contact import find_contacts, make_obstacle, nearest_surface, penetrations
+from .contact import make_obstacle, nearest_surface
+from .forces import Elements, elastic_energies, precompute
 from .grasps import Grasp
-from .forces import Elements, elastic_energies, evaluate, precompute, stretch_lengths
 from .hierarchy import Hierarchy48
+from .integrator import ImplicitEulerSolver, StepControl
 from .lod import LodPolicy
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
-from .solver import Constraints, SparsePattern, filtered_pcg, solve_projected_direct
+from .pins import Pin
+from .state import ClothState, SimulationError, StepStats
 
-__all__ = ["ClothSim", "ClothState", "Pin", "StepStats", "SimulationError",
-           "ImplicitEulerSolver"]
+__all__ = ["ClothSim"]
 
 log = logging.getLogger(__name__)
-
-
-class SimulationError(RuntimeError):
-    """The step could not produce a finite state; the previous state is kept."""
-
-
-@dataclass
-class ClothState:
-    """Dynamic state. ``positions``/``velocities``: ``(n, 3)`` in m and m/s; ``time`` in s."""
-
-    positions: np.ndarray
-    velocities: np.ndarray
-    time: float = 0.0
-
-    def copy(self) -> "ClothState":
-        return ClothState(self.positions.copy(), self.velocities.copy(), self.time)
-
-
-@dataclass
-class Pin:
-    """A particle held at a target.
-
-    Attributes:
-        name: label.
-        uv: requested material point (m); ``vertex`` is the (compact) index of
-            the particle holding it, ``node`` its permanent id (pool id with LOD
-            on; equal to ``vertex`` otherwise), and ``snap_distance`` (m) how far
-            that particle's rest point is.
-        anchor: ``(3,)`` target used when there are no waypoints (m).
-        waypoints: ``(w, 4)`` rows ``[t, x, y, z]``; linear in between, held at
-            the ends.
-        release_time: time (s) after which the pin no longer holds, or None.
-    """
-
-    name: str
-    uv: np.ndarray
-    vertex: int
-    snap_distance: float
-    node: int
-    anchor: np.ndarray
-    waypoints: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
-    release_time: float | None = None
-
-    def active(self, time: float) -> bool:
-        return self.release_time is None or time < self.release_time
-
-    def target(self, time: float) -> np.ndarray:
-        """Target position (m) at simulation time ``time`` (s)."""
-        if len(self.waypoints) == 0:
-            return self.anchor
-        t = self.waypoints[:, 0]
-        return np.array([np.interp(time, t, self.waypoints[:, d]) for d in (1, 2, 3)])
-
-
-@dataclass
-class StepStats:
-    """Statistics of one time step (SI units; times in milliseconds).
-
-    ``vertex_count``/``triangle_count``/``triangles_per_level`` describe the
-    mesh the step simulated (after this step's refines and merges);
-    ``step_ms`` includes ``lod_ms`` (criterion, operations and the refresh of
-    compact arrays) and the physics (``force_ms + assembly_ms + solve_ms``).
-    ``substeps`` is how many linearised solves the step was split into (1 unless
-    its stretch grew too fast, see :attr:`ClothSim.max_strain_growth`); with
-    more than one, the solver figures add up over all of them (the rejected
-    attempts included).
-    """
-
-    step_index: int
-    time: float
-    vertex_count: int
-    triangle_count: int
-    pinned_count: int
-    contact_count: int
-    refines: int
-    merges: int
-    triangles_per_level: tuple
-    cg_iterations: int
-    residual: float
-    converged: bool
-    step_ms: float
-    lod_ms: float
-    force_ms: float
-    assembly_ms: float
-    solve_ms: float
-    kinetic_energy: float
-    gravity_energy: float
-    stretch_energy: float
-    shear_energy: float
-    bend_energy: float
-    max_strain: float
-    max_speed: float
-    substeps: int = 1
-
-    @property
-    def total_energy(self) -> float:
-        return (self.kinetic_energy + self.gravity_energy + self.stretch_energy
-                + self.shear_energy + self.bend_energy)
-
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-
-@dataclass
-class SolveReport:
-    """What the solver reports alongside the new state (times in ms)."""
-
-    iterations: int
-    residual: float
-    converged: bool
-    force_ms: float
-    assembly_ms: float
-    solve_ms: float
-    contacts: int = 0
-    released: int = 0
-
-
-class ImplicitEulerSolver:
-    """One linearised backward-Euler step with filtered PCG (DESIGN.md §3).
-
-    Keeps the sparsity pattern and the previous Δv (warm start) while the
-    topology is unchanged; call :meth:`reset_topology` after it changes.
-    """
-
-    def __init__(self, solver_config, material, gravity):
-        self.config = solver_config
-        self.material = material
-        self.gravity = np.asarray(gravity, dtype=float)
-        self._pattern: SparsePattern | None = None
-        self._previous_dv: np.ndarray | None = None
-        self._prepared = None
-
-    def reset_topology(self, elements: Elements | None = None) -> None:
-        """Forget per-topology caches; with ``elements``, build the new pattern now."""
-        self._pattern = None
-        self._previous_dv = None
-        self._prepared = None
-        if elements is not None:
-            self._pattern = SparsePattern(elements.vertex_count,
-                                          [elements.triangles, elements.hinge_vertices])
-
-    def prepare(self, elements: Elements, state: ClothState, h: float):
-        """Forces, energies and system blocks at ``state`` (cached).
-
-        The LOD criterion reads the hinge angles and gradients from this same
-        evaluation, and a contact re-solve repeats the step from the same
-        state, so it is computed once per (topology, state).  Returns
-        ``(evaluation, milliseconds it took)``.
-        """
-        cached = self._prepared
-        if (cached is not None and cached[0] is elements and cached[1] == h
-                and cached[6] is self.material          # the node can change it live
-                and np.array_equal(cached[2], state.positions)
-                and np.array_equal(cached[3], state.velocities)):
-            return cached[4], cached[5]
-        start = _time.perf_counter()
-        ev = evaluate(elements, self.material, state.positions, state.velocities,
-                      stiffness_weight=h * h, damping_weight=h)
-        ms = 1e3 * (_time.perf_counter() - start)
-        self._prepared = (elements, h, state.positions.copy(), state.velocities.copy(), ev, ms,
-                          self.material)
-        return ev, ms
-
-    def step(self, elements: Elements, masses: np.ndarray, state: ClothState,
-             constraints_targets: tuple[np.ndarray, np.ndarray], h: float,
-             contacts=None, max_correction_speed: float = 0.5):
-        """Advance ``state`` by ``h`` seconds.
-
-        Args:
-            elements: rest data of the current topology.
-            masses: ``(n,)`` particle masses, kg.
-            state: current state (not modified).
-            constraints_targets: ``(indices (k,), targets (k, 3))``: particles
-                that must be exactly at ``targets`` (m) at the end of the step.
-            h: time step, s.
-            contacts: a :class:`~cloth_lod_ros.contact.ContactSet` or None.  Each
-                contact forbids motion into the obstacle (normal velocity
-                prescribed to push out of the offset surface at most
-                ``max_correction_speed`` m/s); contacts whose force would pull
-                are released and the system solved again; friction follows.
-
-        Returns:
-            ``(new_state, SolveReport)``.
-        """
-        mat = self.material
-        x, v = state.positions, state.velocities
-        if self._pattern is None:
-            self._pattern = SparsePattern(elements.vertex_count,
-                                          [elements.triangles, elements.hinge_vertices])
-        ev, evaluate_ms = self.prepare(elements, state, h)
-        t0 = _time.perf_counter() - 1e-3 * evaluate_ms     # force_ms includes the evaluation
-        drag = mat.air_drag
-        force = ev.force + masses[:, None] * (self.gravity - drag * v)
-        rhs = h * (force + h * ev.stiffness_times_velocity)
-        t1 = _time.perf_counter()
-        # M − h ∂f/∂v includes the drag term h·c·M on the diagonal.
-        matrix = self._pattern.assemble([ev.triangle_blocks, ev.hinge_blocks],
-                                        masses * (1.0 + h * drag))
-        t2 = _time.perf_counter()
-
-        held, targets = constraints_targets
-        # Velocity that lands a held particle on its target: x + h v_new = target.
-        target_velocity = (targets - x[held]) / h
-        pinned = Constraints(indices=held, projectors=np.zeros((len(held), 3, 3)),
-                             prescribed=target_velocity - v[held])
-        released = 0
-        if contacts is not None and len(contacts):
-            result, contacts, released = self._solve_with_contacts(
-                matrix, rhs, pinned, contacts, masses, v, h, max_correction_speed)
-        else:
-            result = self._solve(matrix, rhs, pinned)
-        t3 = _time.perf_counter()
-        new_v = v + result.dv
-        new_x = x + h * new_v
-        if contacts is not None and len(contacts):
-            # Inelastic contact: the normal velocity that moved a particle onto
-            # the offset surface (landing or push-out) is a position correction,
-            # not motion to keep; storing it would bounce it off next step.
-            n_c = contacts.normals
-            vn = np.einsum("kd,kd->k", new_v[contacts.indices], n_c)
-            new_v[contacts.indices] -= vn[:, None] * n_c
-        # Held particles: exactly on target (the velocity above agrees to rounding).
-        new_x[held] = targets
-        new_v[held] = target_velocity
-        self._keep_warm_start(result.dv)
-        report = SolveReport(result.iterations, result.residual, result.converged,
-                             1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2),
-                             len(contacts) if contacts is not None else 0, released)
-        return ClothState(new_x, new_v, state.time + h), report
-
-    def _keep_warm_start(self, dv: np.ndarray) -> None:
-        """Start the next CG solve from ``dv`` (``(n, 3)`` m/s), unless it is not
-        finite (a rejected step's NaN would spread into the retry)."""
-        self._previous_dv = dv if np.all(np.isfinite(dv)) else None
-
-    def _solve(self, matrix, rhs, constraints):
-        if self.config.method == "direct":
-            return solve_projected_direct(matrix, rhs, constraints)
-        return filtered_pcg(matrix, rhs, constraints, self._pattern.diagonal_blocks(matrix),
-                            guess=self._previous_dv, tolerance=self.config.tolerance,
-                            max_iterations=self.config.max_iterations)
-
-    def _solve_with_contacts(self, matrix, rhs, pinned, contacts, masses, v, h, max_speed):
-        """Solve with pins plus one-sided contacts and Coulomb friction (BW §5.3, §6).
-
-        1. Every contact is held: its normal velocity lands it on the offset
-           surface (a penetrating one is pushed out at most ``max_speed``) and,
-           where the obstacle has friction, its tangential velocity is 0.
-           The reaction ``R = A Δv − b`` (an impulse, N·s) is what holding
-           costs; contacts whose normal reaction would pull are released and
-           the system is solved again (once).
-        2. Coulomb: a contact whose tangential reaction exceeds ``μ R·n``
-           cannot stick; it slides on the surface with the friction impulse
-           ``μ (R·n) R̂_t`` (opposing the slip) in the right-hand side, and the
-           system is solved again; repeated (at most 6 rounds) while new
-           contacts start to slip, because when one row lets go the next row
-           takes its load.  Friction is inside the implicit solve,
-           so the rest of the cloth responds to it in the same step.
-        """
-        released = 0
-        iterations = 0
-        slip = np.zeros(len(contacts), dtype=bool)
-        friction_impulse = np.zeros((len(contacts), 3))
-        rounds = 6          # a slip front moves one row of contacts per round
-        for attempt in range(rounds):
-            normals = contacts.normals
-            target_vn = np.minimum(-contacts.distance / h, max_speed)
-            current = v[contacts.indices]
-            sliding = (contacts.friction <= 0.0) | slip
-            projectors = np.zeros((len(contacts), 3, 3))
-            projectors[sliding] = np.eye(3) - normals[sliding, :, None] * normals[sliding, None, :]
-            # Held contacts: full Δv to (target_vn n); sliding: normal part only.
-            prescribed = target_vn[:, None] * normals - current
-            current_vn = np.einsum("kd,kd->k", current, normals)
-            prescribed[sliding] = ((target_vn - current_vn)[sliding, None] * normals[sliding])
-            step_rhs = rhs
-            if slip.any():
-                step_rhs = rhs.copy()
-                step_rhs[contacts.indices] += friction_impulse
-            result = self._solve(matrix, step_rhs,
-                                 _merge_constraints(pinned, contacts.indices, projectors,
-                                                    prescribed))
-            iterations += result.iterations
-            self._keep_warm_start(result.dv)       # warm start for the next round
-            if attempt == rounds - 1:
-                break
-            reaction = ((matrix @ result.dv.ravel()).reshape(-1, 3) - step_rhs)[contacts.indices]
-            normal_reaction = np.einsum("kd,kd->k", reaction, normals)
-            pulling = (normal_reaction < 0.0) & ~contacts.hold
-            if pulling.any() and attempt == 0:
-                released += int(pulling.sum())
-                contacts = contacts.subset(~pulling)
-                slip = slip[~pulling]
-                friction_impulse = friction_impulse[~pulling]
-                if not len(contacts):
-                    result = self._solve(matrix, rhs, pinned)
-                    iterations += result.iterations
-                    break
-                continue
-            tangential = reaction - normal_reaction[:, None] * normals
-            magnitude = np.linalg.norm(tangential, axis=1)
-            # Normal load for friction: the reaction less what pushing a particle
-            # out of the offset surface costs (a position correction is not a load).
-            correction = masses[contacts.indices] * np.maximum(target_vn, 0.0)
-            limit = contacts.friction * np.maximum(normal_reaction - correction, 0.0)
-            new_slip = (contacts.friction > 0.0) & (magnitude > limit) & ~slip
-            if not new_slip.any():
-                break
-            slip |= new_slip
-            friction_impulse[new_slip] = (limit[new_slip] / magnitude[new_slip])[:, None] \
-                * tangential[new_slip]
-        result.iterations = iterations
-        return result, contacts, released
-
-
-def _merge_constraints(pinned: Constraints, indices, projectors, prescribed) -> Constraints:
-    return Constraints(indices=np.concatenate([pinned.indices, indices]),
-                       projectors=np.concatenate([pinned.projectors, projectors]),
-                       prescribed=np.concatenate([pinned.prescribed, prescribed]))
 
 
 class ClothSim:
     """A cloth scene ready to step.
 
-    Build from a :class:`~cloth_lod_ros.config.SceneConfig` or with
+    Build from a :class:`~cloth_lod_ros.sim.config.SceneConfig` or with
     :meth:`from_scene` (built-in name or YAML path, plus ``key=value``
     overrides).  Arrays returned by the properties are the live state: copy
     them if you keep them across steps.
 
-    Step-size control (BW §5: the step is cut where the stretch changes too
-    much in one step): one linearised backward-Euler step cannot see the
-    second-order stretch of motion *across* an unstretched edge (its tangent
-    stiffness there is zero), so a part of the cloth that is stopped or turned
-    abruptly while its neighbours move on (a fast impact, a sharp jerk of a
-    grasp) comes out of the step stretched far beyond what the material does
-    and with energy it never had (a 5 m/s impact at 1/60 s: 58 % strain and
-    14x the energy; at 1/240 s: 4 %, no gain).  A step in which any
-    triangle's stretch ``|w|`` grows by more than :attr:`max_strain_growth`
-    (or that is not finite) is therefore redone as two half steps, nested up to
-    :attr:`max_substep_depth` times; held particles move along the straight
-    line to their end-of-step targets.  Ordinary motion stays below the limit
-    (the built-in scenes: at most 0.08 per step) and is not affected; the one
-    step of theirs it splits is ``table_drape`` with LOD off, where the cloth
-    leaving the table edge used to be stretched by 133 % and thrown back.
+    Each step: the LOD criterion and its splits and merges (LOD on), the
+    grasps' script and speed-limited targets, then the integrator
+    (:class:`~cloth_lod_ros.sim.integrator.ImplicitEulerSolver`) wrapped in
+    contact re-solves and the step-size control
+    (:class:`~cloth_lod_ros.sim.integrator.StepControl`).
     """
-
-    max_strain_growth = 0.1     # largest |w| increase of a triangle in one (sub)step
-    max_substep_depth = 3       # at most 2**3 = 8 substeps per step
 
     def __init__(self, scene: SceneConfig, keep_stats: int | None = None):
         """Args:
@@ -415,7 +86,7 @@ class ClothSim:
         self.lod_policy: LodPolicy | None = None
         if scene.lod.enabled:
             # Adaptive: the hierarchy owns the particles; the step works on
-            # compact copies of the active ones (DESIGN.md §4).
+            # compact copies of the active ones (design §4).
             self.hierarchy = Hierarchy48(base, origin + base.uv @ axes,
                                          scene.material.density, max_level=cloth.level)
             self.hierarchy.refine_uniform(scene.lod.initial_level)
@@ -434,6 +105,7 @@ class ClothSim:
         # Inputs beyond pins: obstacles (contact) and grasps.  A scene without
         # obstacles never evaluates contact code.
         self.obstacles = [make_obstacle(o) for o in scene.obstacles]
+        self.step_control = StepControl(self.solver, self.obstacles, scene.contact)
         self.grasps = [Grasp.from_config(g) for g in scene.grasps]
         self._scripted_closed = {g.name: False for g in self.grasps}
         self.contacts = None
@@ -620,7 +292,8 @@ class ClothSim:
             if g.closed:
                 g.advance(next_time, h)
         held = self._held(next_time)
-        new_state, report, contacts, substeps = self._advance(self.state, held, h, 0)
+        new_state, report, contacts, substeps = self.step_control.advance(
+            self.elements, self.masses, self.state, held, h)
         new_state.time = next_time          # not the sum of the substeps' roundings
         self.contacts = contacts
         self._contacts_version = self.hierarchy.version if self.hierarchy is not None else 0
@@ -693,66 +366,6 @@ class ClothSim:
             self.lod_policy.config = scene.lod
             self.lod_policy.bend_stiffness = scene.material.bend_stiffness
 
-    def _advance(self, state: ClothState, held: tuple[np.ndarray, np.ndarray], h: float,
-                 depth: int) -> tuple:
-        """Advance ``state`` by ``h`` s with the held particles ending on ``held``'s
-        targets; a step whose stretch grows too fast (see the class docstring)
-        is redone as two halves.  Returns ``(state, report, contacts, substeps)``."""
-        new_state, report, contacts = self._solve_step(state, held, h)
-        if depth >= self.max_substep_depth or self._acceptable(state, new_state):
-            return new_state, report, contacts, 1
-        indices, targets = held
-        halfway = (indices, 0.5 * (state.positions[indices] + targets))
-        middle, first, _, n_first = self._advance(state, halfway, 0.5 * h, depth + 1)
-        end, second, contacts, n_second = self._advance(middle, held, 0.5 * h, depth + 1)
-        # The report covers all the work of the step, the rejected attempt included.
-        second.iterations += first.iterations + report.iterations
-        second.residual = max(first.residual, second.residual)
-        second.converged = first.converged and second.converged
-        second.force_ms += first.force_ms + report.force_ms
-        second.assembly_ms += first.assembly_ms + report.assembly_ms
-        second.solve_ms += first.solve_ms + report.solve_ms
-        second.released += first.released
-        return end, second, contacts, n_first + n_second
-
-    def _acceptable(self, start: ClothState, end: ClothState) -> bool:
-        """Finite, and no triangle's stretch grew by more than ``max_strain_growth``."""
-        if not (np.all(np.isfinite(end.positions)) and np.all(np.isfinite(end.velocities))):
-            return False
-        growth = (stretch_lengths(self.elements, end.positions)
-                  - stretch_lengths(self.elements, start.positions))
-        return not len(growth) or float(growth.max()) <= self.max_strain_growth
-
-    def _solve_step(self, state: ClothState, held: tuple[np.ndarray, np.ndarray],
-                    h: float) -> tuple:
-        """One linearised backward-Euler step of ``h`` s from ``state`` with contacts.
-
-        Returns ``(new_state, report, contacts)``.
-        """
-        contacts = None
-        thickness = self.scene.contact.thickness
-        if self.obstacles:
-            contacts = find_contacts(self.obstacles, state.positions, thickness,
-                                     exclude=held[0], velocities=state.velocities, h=h)
-        new_state, report = self.solver.step(
-            self.elements, self.masses, state, held, h, contacts,
-            self.scene.contact.max_correction_speed)
-        for _ in range(2 if self.obstacles else 0):
-            # A particle that the start-of-step test missed (accelerated into an
-            # obstacle, or released and pushed in) gets a contact and the step is
-            # solved again.
-            missed = penetrations(self.obstacles, state.positions, new_state.positions,
-                                  thickness, exclude=held[0])
-            if not len(missed):
-                break
-            contacts = contacts.union(missed)
-            new_state, retry = self.solver.step(
-                self.elements, self.masses, state, held, h, contacts,
-                self.scene.contact.max_correction_speed)
-            retry.iterations += report.iterations
-            report = retry
-        return new_state, report, contacts
-
     def _sync_hierarchy(self) -> Hierarchy48:
         """Write the live state back into the hierarchy (it is only read at
         topology changes) and return it."""
@@ -771,7 +384,7 @@ class ClothSim:
         return nearest_surface(self.obstacles, midpoints)[0] < 0.5 * self.scene.contact.thickness
 
     def apply_mesh_operations(self, ops) -> None:
-        """Apply :class:`~cloth_lod_ros.hierarchy.Split`/``Merge`` values (LOD on only).
+        """Apply :class:`~cloth_lod_ros.sim.hierarchy.Split`/``Merge`` values (LOD on only).
 
         For scripting and tests; the state is carried over as the operations
         define (face rule on split, momentum-conserving merge).

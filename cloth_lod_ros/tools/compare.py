@@ -1,6 +1,6 @@
 """Adaptive against uniform: time per step and distance at shared material points.
 
-DESIGN.md §5: the reference is the same scene on the uniform mesh at the
+Design §5: the reference is the same scene on the uniform mesh at the
 adaptive run's maximum level, with the same time step.  Both cloths are sampled
 at a fixed (u, v) grid (barycentric interpolation in the containing triangle)
 and compared by RMS and maximum 3-D distance.
@@ -13,9 +13,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .config import load_scene
-from .metrics import material_grid, rms_and_max_distance
-from .sim import ClothSim
+from ..sim.config import load_scene
+from ..sim.metrics import material_grid, rms_and_max_distance
+from ..sim import ClothSim
 
 __all__ = ["RunSummary", "compare_adaptive_uniform"]
 

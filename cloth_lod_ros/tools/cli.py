@@ -4,8 +4,8 @@
                         [--out state.npz] [--png picture.png] [--frames N] [--quiet]
     cloth-lod compare SCENE [--level L] [--duration S] [--set key=value ...] [--json F]
     cloth-lod scenes
-    cloth-lod bench [SCENE] [--quick] ...        speed against error (cloth_lod_ros.bench)
-    cloth-lod stress [--quick] ...               hard-case stability suite (cloth_lod_ros.stress)
+    cloth-lod bench [SCENE] [--quick] ...        speed against error (cloth_lod_ros.tools.bench)
+    cloth-lod stress [--quick] ...               hard-case stability suite (cloth_lod_ros.tools.stress)
     cloth-lod analyze BAG [--png F] [--json [F]] summary and plots of a recorded session
     cloth-lod replay BAG [--json [F]]            re-simulate a recording and compare
     cloth-lod recover BAG [--out DIR]            rebuild an interrupted recording
@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .bag import BagError
-from .config import SceneError, builtin_scene_names, load_scene
-from .sim import ClothSim, SimulationError, StepStats
+from ..bag.rosbag import BagError
+from ..sim.config import SceneError, builtin_scene_names, load_scene
+from ..sim import ClothSim, SimulationError, StepStats
 
 __all__ = ["main", "save_state"]
 
@@ -174,7 +174,8 @@ class _HeadlessRecording:
     time, stamped start + simulated time (so ``play`` shows physical speed)."""
 
     def __init__(self, args, sim: ClothSim, overrides: list, wall_start: float):
-        from .session import FrameBuilder, SessionRecorder
+        from ..bag.recorder import SessionRecorder
+        from ..messages.frames import FrameBuilder
         self.sim = sim
         self.recorder = SessionRecorder(args.bag, "/", args.bag_compression,
                                         grasp_names=[g.name for g in sim.grasps])
@@ -214,7 +215,7 @@ class _HeadlessRecording:
 
 def _cmd_compare(args) -> int:
     import json
-    from .benchmark import compare_adaptive_uniform, format_comparison
+    from .compare import compare_adaptive_uniform, format_comparison
     result = compare_adaptive_uniform(args.scene, level=args.level, duration=args.duration,
                                       overrides=args.set, grid=args.grid,
                                       candidate=args.candidate_set,
@@ -246,7 +247,7 @@ def _write_json(result: dict, target: str) -> None:
 
 
 def _cmd_analyze(args) -> int:
-    from .bagtools import analyze, format_analysis, plot_analysis
+    from ..bag.analysis import analyze, format_analysis, plot_analysis
     result = analyze(args.bag)
     if args.json == "-":
         result.pop("series")
@@ -263,7 +264,7 @@ def _cmd_analyze(args) -> int:
 
 
 def _cmd_replay(args) -> int:
-    from .bagtools import format_replay, replay
+    from ..bag.replay import format_replay, replay
     result = replay(args.bag)
     if args.json == "-":
         _write_json(result, "-")
@@ -275,7 +276,7 @@ def _cmd_replay(args) -> int:
 
 
 def _cmd_recover(args) -> int:
-    from .bag import recover
+    from ..bag.rosbag import recover
     report = recover(args.bag, args.out)
     print(f"{report.output}: recovered {report.messages} messages on {report.topics} topics "
           f"from {report.chunks} complete chunks (reading stopped at: {report.stopped_because})")
@@ -283,7 +284,7 @@ def _cmd_recover(args) -> int:
 
 
 def _cmd_play(args) -> int:
-    from .player import play
+    from ..ros.player import play
     return play(args.bag, rate=args.rate, loop=args.loop, topics=args.topics, delay=args.delay)
 
 
@@ -355,7 +356,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, module_name, text in (
             ("bench", "bench", "speed against error: uniform levels and adaptive thresholds"),
             ("stress", "stress", "hard-case stability suite: one table, pass/fail")):
-        module = importlib.import_module(f"cloth_lod_ros.{module_name}")
+        module = importlib.import_module(f"cloth_lod_ros.tools.{module_name}")
         command = sub.add_parser(name, help=text)
         module.add_arguments(command)
         command.set_defaults(func=module.run)

@@ -1,14 +1,14 @@
 """The 4-8 hierarchy at run time: split and merge as invertible operations.
 
-Mechanism only (paper §3, §5.2–§5.3, §5.5; DESIGN.md §4); *when* to split or merge
-is decided by :mod:`cloth_lod_ros.lod`.
+Mechanism only (paper §3, §5.2–§5.3, §5.5; design §4); *when* to split or merge
+is decided by :mod:`cloth_lod_ros.sim.lod`.
 
 Storage is a pool of numpy arrays with capacity growth and free lists, not one
 Python object per element:
 
 * vertices: rest ``uv``, state ``x``/``v``, ``mass_units``, active flag, and for
   a vertex made by a split the hypotenuse it bisected;
-* triangles: ``(apex, left, right)`` as in :mod:`cloth_lod_ros.mesh48`, level,
+* triangles: ``(apex, left, right)`` as in :mod:`cloth_lod_ros.sim.mesh48`, level,
   parent, two children, active flag and the time it was (re)activated.
 
 A split keeps its parents in memory (inactive); a merge frees the children and
@@ -73,7 +73,7 @@ class Hierarchy48:
     """A 4-8 mesh that can be refined and simplified locally.
 
     Args:
-        base: level-0 mesh from :func:`cloth_lod_ros.mesh48.base_mesh`.
+        base: level-0 mesh from :func:`cloth_lod_ros.sim.mesh48.base_mesh`.
         positions: ``(n0, 3)`` initial positions of the base vertices, m.
         density: areal density, kg/m².
         max_level: deepest level a triangle may reach.
@@ -352,7 +352,7 @@ class Hierarchy48:
     def check(self) -> None:
         """Raise :class:`MeshError` unless the active mesh satisfies the 4-8 invariants.
 
-        Conforming and right isosceles (:func:`cloth_lod_ros.mesh48.check_mesh`),
+        Conforming and right isosceles (:func:`cloth_lod_ros.sim.mesh48.check_mesh`),
         levels across every edge differ by at most one, mass units match the
         active triangles exactly, and the total is ``3 × base triangles``.
         """

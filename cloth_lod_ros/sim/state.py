@@ -1,0 +1,83 @@
+"""Simulator state and per-step records (data only, no operators; design §9).
+
+* :class:`ClothState` - positions, velocities and time of the active particles;
+* :class:`StepStats` - what one step did and cost;
+* :class:`SimulationError` - a step that could not produce a finite state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ClothState", "StepStats", "SimulationError"]
+
+
+class SimulationError(RuntimeError):
+    """The step could not produce a finite state; the previous state is kept."""
+
+
+@dataclass
+class ClothState:
+    """Dynamic state. ``positions``/``velocities``: ``(n, 3)`` in m and m/s; ``time`` in s."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    time: float = 0.0
+
+    def copy(self) -> "ClothState":
+        return ClothState(self.positions.copy(), self.velocities.copy(), self.time)
+
+
+
+@dataclass
+class StepStats:
+    """Statistics of one time step (SI units; times in milliseconds).
+
+    ``vertex_count``/``triangle_count``/``triangles_per_level`` describe the
+    mesh the step simulated (after this step's refines and merges);
+    ``step_ms`` includes ``lod_ms`` (criterion, operations and the refresh of
+    compact arrays) and the physics (``force_ms + assembly_ms + solve_ms``).
+    ``substeps`` is how many linearised solves the step was split into (1 unless
+    its stretch grew too fast, see :attr:`ClothSim.max_strain_growth`); with
+    more than one, the solver figures add up over all of them (the rejected
+    attempts included).
+    """
+
+    step_index: int
+    time: float
+    vertex_count: int
+    triangle_count: int
+    pinned_count: int
+    contact_count: int
+    refines: int
+    merges: int
+    triangles_per_level: tuple
+    cg_iterations: int
+    residual: float
+    converged: bool
+    step_ms: float
+    lod_ms: float
+    force_ms: float
+    assembly_ms: float
+    solve_ms: float
+    kinetic_energy: float
+    gravity_energy: float
+    stretch_energy: float
+    shear_energy: float
+    bend_energy: float
+    max_strain: float
+    max_speed: float
+    substeps: int = 1
+
+    @property
+    def total_energy(self) -> float:
+        return (self.kinetic_energy + self.gravity_energy + self.stretch_energy
+                + self.shear_energy + self.bend_energy)
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+

@@ -1,0 +1,1 @@
+"""Command-line tools: ``cloth-lod`` (run, compare, bench, stress, bags), pictures (design §9)."""

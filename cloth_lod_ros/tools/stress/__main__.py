@@ -1,0 +1,7 @@
+"""``python -m cloth_lod_ros.tools.stress``."""
+
+import sys
+
+from .runner import main
+
+sys.exit(main())
