@@ -199,3 +199,27 @@ def test_direct_and_pcg_agree():
         a.step()
         b.step()
     np.testing.assert_allclose(a.positions, b.positions, atol=1e-7)
+
+
+@pytest.mark.parametrize("overrides, target", [
+    (["simulation.gravity=[0,0,-1e12]"], None),           # singular system
+    ([], [1e30, 0.0, 0.0]),                                 # a pin target 1e30 m away
+    (["cloth.level=6", "material.stretch_damping=1e12"], None),
+], ids=["gravity_1e12", "target_1e30", "damping_1e12"])
+def test_absurd_inputs_fail_as_a_simulation_error_with_the_state_kept(overrides, target):
+    """Whatever the numerics do with absurd inputs (LinAlgError, overflow), a step
+    either succeeds with a finite state or raises SimulationError and keeps the
+    previous state: callers (the node) handle one exception type."""
+    sim = ClothSim.from_scene("hang_two_corners", ["cloth.level=3", *overrides])
+    if target is not None:
+        sim.set_pin_target("top_left", target)
+    for _ in range(5):
+        before = sim.state.copy()
+        try:
+            sim.step()
+        except SimulationError as exc:
+            assert "refused" in str(exc)
+            np.testing.assert_array_equal(sim.positions, before.positions)
+            assert sim.time == before.time
+            break
+        assert np.all(np.isfinite(sim.positions))

@@ -269,9 +269,22 @@ class ClothSim:
         """Advance by one time step; return its statistics.
 
         Raises:
-            SimulationError: the new state would not be finite (the state is
-                left at the previous step).
+            SimulationError: the step failed - the new state would not be
+                finite, or the numerics broke down on absurd inputs (a singular
+                system, an overflow: e.g. gravity of 1e12 m/s^2 or a target
+                1e30 m away).  The cloth's state is left at the previous step;
+                no other exception escapes a step.
         """
+        try:
+            return self._step()
+        except SimulationError:
+            raise
+        except (np.linalg.LinAlgError, ArithmeticError, ValueError) as exc:
+            self.solver.reset_topology()
+            raise SimulationError(f"step from t = {self.state.time:.4f} s failed "
+                                  f"({type(exc).__name__}: {exc}); step refused") from exc
+
+    def _step(self) -> StepStats:
         h = self.time_step
         start = _time.perf_counter()
         next_time = self.state.time + h
