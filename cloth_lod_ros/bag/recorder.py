@@ -83,6 +83,9 @@ class SessionRecorder:
         self.failed: str | None = None
         self.dropped_frames = 0
         self._last_ns = 0
+        # Inputs are recorded from the node's input threads, frames from its
+        # stepping thread: log times and queue order are taken under one lock.
+        self._order_lock = threading.Lock()
         self._max_queued = max_queued
         self._queue: queue.Queue = queue.Queue()
         self._thread = threading.Thread(target=self._drain, name="bag-writer", daemon=True)
@@ -133,7 +136,8 @@ class SessionRecorder:
     def _write(self, relative: str, data: bytes, time_ns: int | None,
                flush: bool = False) -> None:
         if self.active:
-            self._queue.put((self.topic(relative), data, self._time(time_ns), flush))
+            with self._order_lock:
+                self._queue.put((self.topic(relative), data, self._time(time_ns), flush))
 
     def start(self, sim, parameters: dict | None = None, grid_resolution: int = 21,
               time_ns: int | None = None) -> None:
@@ -151,7 +155,8 @@ class SessionRecorder:
         if self._queue.qsize() > self._max_queued:
             self.dropped_frames += 1             # the disk is behind: keep inputs, skip a frame
             return
-        t = self._time(time_ns)
+        with self._order_lock:
+            t = self._time(time_ns)
         for relative, data in frames.items():
             self._write(relative, data, t)
 

@@ -17,7 +17,7 @@ from ..sim.metrics import material_grid
 from .markers import (CUBE, DELETEALL, MarkerSpec, cloth_markers, obstacle_markers,
                       serialize_marker_array, serialize_point_cloud, unique_edges)
 
-__all__ = ["FrameBuilder", "grid_uv"]
+__all__ = ["FrameBuilder", "grid_uv", "standard_diagnostics"]
 
 
 def grid_uv(scene, resolution: int) -> np.ndarray:
@@ -136,3 +136,19 @@ class FrameBuilder:
         header = Header(frame_id=self.frame_id)
         header.stamp.sec, header.stamp.nanosec = int(sec), int(nanosec)
         return DiagnosticArray(header=header, status=[status])
+
+
+def standard_diagnostics(name: str, hardware_id: str, level: int, message: str,
+                         values: dict, stamp: tuple) -> bytes:
+    """CDR bytes of a ``/diagnostics`` message as ``diagnostic_updater`` publishes it.
+
+    One status named ``name`` ("<node>: <task>"); ``values`` maps keys to
+    numbers (rendered with ``repr`` so tools can plot them) or short strings.
+    """
+    status = DiagnosticStatus(
+        name=name, hardware_id=hardware_id, level=bytes([int(level)]), message=message,
+        values=[KeyValue(key=k, value=repr(float(v)) if isinstance(v, (int, float, np.number))
+                         and not isinstance(v, bool) else str(v)) for k, v in values.items()])
+    header = Header()
+    header.stamp.sec, header.stamp.nanosec = int(stamp[0]), int(stamp[1])
+    return serialize_message(DiagnosticArray(header=header, status=[status]))

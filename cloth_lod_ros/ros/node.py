@@ -1,15 +1,31 @@
 """``cloth_lod_node``: the adaptive cloth simulator as a ROS 2 node (design §6).
 
 Thin by design: declare parameters, build a :class:`~cloth_lod_ros.sim.ClothSim`,
-wire topics and services.  Inputs (grasp poses, open/close) go straight into the
-simulator; outputs are built vectorised by :mod:`cloth_lod_ros.messages.markers`.
+wire topics and services.  Three kinds of thread share the work, and only the
+stepping thread touches the simulator:
+
+* the **pose thread** judges each grasp pose when it arrives (frame, finite,
+  orientation, stamp, workspace: :func:`~cloth_lod_ros.ros.inputs.judge_pose`),
+  records it, and leaves the newest target per grasp in the input queue;
+* the **request thread** answers every service call at once - "queued: applies
+  before step N" or a refusal with the reason (a full queue during a burst);
+  parameter changes are validated as a whole scene without the simulator;
+* the **stepping thread** (a steady-clock timer) takes the queue, applies it in
+  arrival order (recording each input with the step it precedes), steps as far
+  as the pacing clock allows, and publishes on a fixed schedule.
+
+So an input never waits for a step, and no input can stop the node: anything
+a step or an input raises is caught, counted and reported in ``cloth/lod_stats``
+and ``/diagnostics``; a failed step stops the simulation (ERROR) until
+``cloth/reset``.
 
 Topics (relative names, so a namespace or remap moves them all):
   in:  ``grasp/<name>/pose`` (geometry_msgs/PoseStamped) for each grasp of the scene
   out: ``cloth/markers`` (visualization_msgs/MarkerArray), ``cloth/lod_stats``
        (diagnostic_msgs/DiagnosticArray), ``cloth/points`` (sensor_msgs/PointCloud2,
        one point per particle), ``cloth/grid`` (organised PointCloud2 sampled on a
-       fixed (u, v) grid: the same points every message, whatever the mesh)
+       fixed (u, v) grid: the same points every message, whatever the mesh),
+       ``/diagnostics`` (1 Hz, numbers only), ``/clock`` (with ``publish_clock``)
 Services: ``grasp/<name>/close`` (std_srvs/SetBool: true holds, false releases),
   ``cloth/reset``, ``cloth/step`` (std_srvs/Trigger), ``cloth/pause`` (std_srvs/SetBool),
   ``cloth/record`` (std_srvs/SetBool: true starts a bag, false finishes it).
@@ -22,36 +38,38 @@ session: inputs as applied, outputs as published, and the scene and parameters
 
 from __future__ import annotations
 
+import collections
 import logging
-import math
-import threading
 import time
 
 import numpy as np
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from rclpy.serialization import serialize_message
-
-from ..bag.rosbag import COMPRESSIONS, BagError
-from ..sim.config import SceneError, load_scene, scene_to_dict
 from ..bag.recorder import SessionRecorder
-from ..messages.frames import FrameBuilder
+from ..bag.rosbag import COMPRESSIONS, BagError
+from ..messages.frames import FrameBuilder, standard_diagnostics
 from ..sim import ClothSim, SimulationError
+from ..sim.cloth import live_update
+from ..sim.config import SceneError, load_scene, scene_to_dict
+from .inputs import POSE_REJECTIONS, InputQueue, PoseLimits, health, judge_pose
 
 __all__ = ["ClothLodNode", "main"]
 
-# Live-tunable parameters: name -> (scene path, unit, low, high).
+# Live-tunable scene parameters: name -> (scene path, unit, low, high).
 LIVE = {
     "lod.refine_threshold": ("lod.refine_threshold", "m", 1e-6, 1.0),
     "lod.coarsen_threshold": ("lod.coarsen_threshold", "m", 1e-7, 1.0),
@@ -63,6 +81,13 @@ LIVE = {
     "material.bend_stiffness": ("material.bend_stiffness", "N*m", 0.0, 10.0),
     "material.air_drag": ("material.air_drag", "1/s", 0.0, 100.0),
 }
+COLOUR_BY = ("level", "shading")
+MAX_STEPS_PER_TICK = 3          # catch-up limit of the real-time pacing
+DIAGNOSTICS_PERIOD = 1.0        # s, /diagnostics as diagnostic_updater publishes it
+RATE_WINDOW = 2.0               # s, window of the measured real-time factor and publish rate
+# Service requests queue in the middleware until the request thread takes them:
+# a deep queue, so a burst is answered (with a refusal if need be), not dropped.
+SERVICE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def _float_descriptor(text, unit, low, high, read_only=False):
@@ -76,6 +101,73 @@ class ClothLodNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("cloth_lod_node", **kwargs)
+        self._declare_parameters()
+        scene = load_scene(self.get_parameter("scene").value)   # SceneError: main() exits 2
+        for name, (path, unit, low, high) in LIVE.items():
+            section, key = path.split(".")
+            value = float(getattr(getattr(scene, section), key))
+            self.declare_parameter(name, value, _float_descriptor(name, unit, low, high))
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._parameters_set)
+
+        self.frame_id = self.get_parameter("frame_id").value
+        self.publish_clock = bool(self.get_parameter("publish_clock").value)
+        _forward_library_logs(self.get_logger())
+        self.queue = InputQueue()
+        self.rejected = dict.fromkeys(POSE_REJECTIONS, 0)
+        self.rejected.update(invalid=0, requests=0)
+        self.poses_received = 0
+        self.internal_errors = 0
+        self.error: str | None = None
+        self.paused = bool(self.get_parameter("paused").value)
+        self.recorder: SessionRecorder | None = None
+        self.record_error: str | None = None
+        self._limits = self._pose_limits()
+        self._build_sim()
+        self._param_scene = self.sim.scene          # what live changes are validated against
+        self._sim_time = 0.0                        # read by the input threads
+
+        self._poses = MutuallyExclusiveCallbackGroup()
+        self._requests = MutuallyExclusiveCallbackGroup()
+        self._stepping = MutuallyExclusiveCallbackGroup()
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.markers_pub = self.create_publisher(MarkerArray, "cloth/markers", latched)
+        self.points_pub = self.create_publisher(PointCloud2, "cloth/points", 10)
+        self.grid_pub = self.create_publisher(PointCloud2, "cloth/grid", 10)
+        self.stats_pub = self.create_publisher(DiagnosticArray, "cloth/lod_stats", 10)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.clock_pub = (self.create_publisher(ClockMsg, "/clock", 10)
+                          if self.publish_clock else None)
+        for g in self.sim.grasps:
+            self.create_subscription(PoseStamped, f"grasp/{g.name}/pose",
+                                     lambda msg, name=g.name: self._on_pose(name, msg), 100,
+                                     callback_group=self._poses)
+            self._service(SetBool, f"grasp/{g.name}/close",
+                          lambda req, res, name=g.name: self._on_close(name, req, res))
+        self._service(Trigger, "cloth/reset", self._on_reset)
+        self._service(Trigger, "cloth/step", self._on_step)
+        self._service(SetBool, "cloth/pause", self._on_pause)
+        self._service(SetBool, "cloth/record", self._on_record)
+        if self.get_parameter("record").value:
+            self._start_recording(self.get_parameter("record_path").value)
+
+        # Timers run on the steady clock: with use_sim_time and no /clock yet the
+        # node still ticks, reports that it waits, and answers inputs.
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._session_wall_start = time.monotonic()     # wall_time_s origin (moves on reset)
+        self._reset_pacing()
+        self._next_publish = time.monotonic()
+        self._next_diagnostics = time.monotonic()
+        self._publishes: collections.deque = collections.deque()
+        self._progress: collections.deque = collections.deque()
+        self._last_level = 0
+        self.timer = None
+        self._make_timer()
+        self._log_start()
+
+    # -- set-up ----------------------------------------------------------------
+    def _declare_parameters(self) -> None:
         string = ParameterDescriptor
         self.declare_parameter("scene", "hang_two_corners", string(
             description="built-in scene name or path to a scene YAML file", read_only=True))
@@ -84,19 +176,32 @@ class ClothLodNode(Node):
         self.declare_parameter("time_step", 0.0, _float_descriptor(
             "simulation time step, 0 = the scene's", "s", 0.0, 1.0, read_only=True))
         self.declare_parameter("publish_rate", 30.0, _float_descriptor(
-            "rate of cloth/markers, cloth/points, cloth/grid and cloth/lod_stats",
-            "Hz", 0.1, 1000.0))
+            "rate of cloth/markers, cloth/points, cloth/grid and cloth/lod_stats; "
+            "at most one frame per step tick (1/time_step in real time)", "Hz", 0.1, 1000.0))
         self.declare_parameter("realtime", True, string(
             description="pace steps to the clock (false: step as fast as possible)"))
-        self.declare_parameter("paused", False, string(description="start paused"))
+        self.declare_parameter("paused", False, string(
+            description="pause (true) or run (false) the simulation; cloth/pause does the same"))
         self.declare_parameter("grid_resolution", 21, ParameterDescriptor(
             description="points per side of the cloth/grid resampling", read_only=True,
             integer_range=[IntegerRange(from_value=2, to_value=257, step=1)]))
         self.declare_parameter("stale_pose_timeout", 1.0, _float_descriptor(
-            "reject grasp poses stamped older than this, 0 = never", "s", 0.0, 3600.0))
+            "reject grasp poses stamped more than this before or after the node's clock, "
+            "0 = never", "s", 0.0, 3600.0))
+        self.declare_parameter("workspace_min", [-10.0, -10.0, -10.0], string(
+            description="[m] x, y, z lower corner of the box grasp targets must lie in"))
+        self.declare_parameter("workspace_max", [10.0, 10.0, 10.0], string(
+            description="[m] x, y, z upper corner of the box grasp targets must lie in"))
+        self.declare_parameter("strain_warn", 0.3, _float_descriptor(
+            "WARN above this strain | |w| - 1 | (ERROR above 4x)", "", 1e-3, 100.0))
+        self.declare_parameter("speed_warn", 20.0, _float_descriptor(
+            "WARN above this particle speed (ERROR above 4x)", "m/s", 1e-3, 1e4))
         self.declare_parameter("colour_by", "level", string(
             description="surface colours: 'level' or 'shading'"))
         self.declare_parameter("wireframe", True, string(description="publish the wireframe"))
+        self.declare_parameter("publish_clock", False, string(
+            description="publish /clock from the simulated time and stamp outputs with it",
+            read_only=True))
         self.declare_parameter("record", False, string(
             description="record the session to a bag from the start", read_only=True))
         self.declare_parameter("record_path", "", string(
@@ -104,69 +209,43 @@ class ClothLodNode(Node):
             read_only=True))
         self.declare_parameter("record_compression", "zstd", string(
             description=f"MCAP chunk compression: {', '.join(COMPRESSIONS)}", read_only=True))
-        scene = load_scene(self.get_parameter("scene").value)
-        for name, (path, unit, low, high) in LIVE.items():
-            section, key = path.split(".")
-            value = float(getattr(getattr(scene, section), key))
-            self.declare_parameter(name, value, _float_descriptor(name, unit, low, high))
-        self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        self.frame_id = self.get_parameter("frame_id").value
-        _forward_library_logs(self.get_logger())
-        # Inputs run beside the (possibly long) step: poses are checked when they
-        # arrive, not after the step, and the simulator is shared under a lock.
-        self._lock = threading.RLock()
-        self._inputs = MutuallyExclusiveCallbackGroup()
-        self._stepping = MutuallyExclusiveCallbackGroup()
-        self.rejected = {"frame": 0, "not_finite": 0, "stale": 0}
-        self._build_sim()
-        reliable_latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.markers_pub = self.create_publisher(MarkerArray, "cloth/markers", reliable_latched)
-        self.points_pub = self.create_publisher(PointCloud2, "cloth/points", 10)
-        self.grid_pub = self.create_publisher(PointCloud2, "cloth/grid", 10)
-        self.stats_pub = self.create_publisher(DiagnosticArray, "cloth/lod_stats", 10)
-        for g in self.sim.grasps:
-            self.create_subscription(PoseStamped, f"grasp/{g.name}/pose",
-                                     lambda msg, name=g.name: self._on_pose(name, msg), 10,
-                                     callback_group=self._inputs)
-            self.create_service(SetBool, f"grasp/{g.name}/close",
-                                lambda req, res, name=g.name: self._locked(self._on_close,
-                                                                           name, req, res),
-                                callback_group=self._inputs)
-        self.create_service(Trigger, "cloth/reset",
-                            lambda req, res: self._locked(self._on_reset, req, res),
-                            callback_group=self._inputs)
-        self.create_service(Trigger, "cloth/step",
-                            lambda req, res: self._locked(self._on_step, req, res),
-                            callback_group=self._inputs)
-        self.create_service(SetBool, "cloth/pause",
-                            lambda req, res: self._locked(self._on_pause, req, res),
-                            callback_group=self._inputs)
-        self.create_service(SetBool, "cloth/record",
-                            lambda req, res: self._locked(self._on_record, req, res),
-                            callback_group=self._inputs)
-        self.paused = bool(self.get_parameter("paused").value)
-        self.recorder: SessionRecorder | None = None
-        self.record_error: str | None = None
-        if self.get_parameter("record").value:
-            self._start_recording(self.get_parameter("record_path").value)
-        self._last_publish = -math.inf
-        self._wall_start = time.monotonic()     # pacing origin (moves on resume)
-        self._session_wall_start = self._wall_start   # wall_time_s origin (moves on reset)
-        self._sim_start = 0.0
+    def _service(self, srv_type, name: str, callback) -> None:
+        def answer(request, response):
+            try:
+                return callback(request, response)
+            except Exception as exc:            # a refusal is an answer; never an exception
+                self.internal_errors += 1
+                response.success, response.message = False, f"internal error: {exc!r}"
+                return response
+        self.create_service(srv_type, name, answer, qos_profile=SERVICE_QOS,
+                            callback_group=self._requests)
+
+    def _make_timer(self) -> None:
+        if self.timer is not None:
+            self.destroy_timer(self.timer)
         period = self.sim.time_step if self.get_parameter("realtime").value else 1e-4
-        self.timer = self.create_timer(period, lambda: self._locked(self._on_timer),
-                                       callback_group=self._stepping)
+        self.timer = self.create_timer(period, self._on_timer, callback_group=self._stepping,
+                                       clock=self._steady)
+
+    def _log_start(self) -> None:
+        rate = self.get_parameter("publish_rate").value
+        step_rate = 1.0 / self.sim.time_step
+        topics = ", ".join(self.resolve_topic_name(t) for t in (
+            "cloth/markers", "cloth/points", "cloth/grid", "cloth/lod_stats"))
         self.get_logger().info(
-            f"scene {self.sim.scene.name}: {self.sim.mesh.vertex_count} particles, "
-            f"grasps {[g.name for g in self.sim.grasps]}, h = {self.sim.time_step:.4g} s")
+            f"scene {self.sim.scene.name}: {self.sim.mesh.vertex_count} particles, grasps "
+            f"{[g.name for g in self.sim.grasps]}, h = {self.sim.time_step:.4g} s; publishing "
+            f"{topics} and /diagnostics in frame '{self.frame_id}' at "
+            f"{min(rate, step_rate):g} Hz" + (" (capped at the step rate)" if rate > step_rate
+                                             else "")
+            + ("; /clock from simulated time" if self.publish_clock else ""))
 
-    def _locked(self, function, *args):
-        with self._lock:
-            return function(*args)
+    def _pose_limits(self) -> PoseLimits:
+        return PoseLimits(self.frame_id, float(self.get_parameter("stale_pose_timeout").value),
+                          tuple(self.get_parameter("workspace_min").value),
+                          tuple(self.get_parameter("workspace_max").value))
 
-    # -- simulator ---------------------------------------------------------
     def _build_sim(self) -> None:
         overrides = {path: self.get_parameter(name).value
                      for name, (path, *_) in LIVE.items()}
@@ -180,118 +259,255 @@ class ClothLodNode(Node):
                                    self.get_parameter("wireframe").value)
         self.error = None
 
-    def _on_set_parameters(self, params) -> SetParametersResult:
-        """Validate live changes as a whole scene; refuse with the reason, keep old values."""
-        changes = {LIVE[p.name][0]: p.value for p in params if p.name in LIVE}
-        if not changes:
-            return SetParametersResult(successful=True)
-        with self._lock:
-            return self._apply_live(changes)
-
-    def _apply_live(self, changes: dict) -> SetParametersResult:
-        try:
-            self.sim.update_parameters(changes)
-        except SceneError as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        self._record_input("parameters", changes=changes)
+    # -- parameters (any thread; never the simulator) --------------------------
+    def _validate_parameters(self, params) -> SetParametersResult:
+        """Validate a set of changes as a whole; refuse with the reason, keep old values."""
+        changes = {}
+        for p in params:
+            if p.name in LIVE:
+                changes[LIVE[p.name][0]] = p.value
+            elif p.name == "colour_by" and p.value not in COLOUR_BY:
+                return SetParametersResult(successful=False, reason=(
+                    f"colour_by must be one of {', '.join(COLOUR_BY)}, got {p.value!r}"))
+            elif p.name in ("workspace_min", "workspace_max"):
+                values = np.asarray(p.value, dtype=float) if p.value is not None else None
+                if values is None or values.shape != (3,) or not np.all(np.isfinite(values)):
+                    return SetParametersResult(successful=False, reason=(
+                        f"{p.name} must be 3 finite numbers [m], got {p.value!r}"))
+        names = {p.name: p.value for p in params}
+        low = np.asarray(names.get("workspace_min", self.get_parameter("workspace_min").value),
+                         dtype=float)
+        high = np.asarray(names.get("workspace_max", self.get_parameter("workspace_max").value),
+                          dtype=float)
+        if np.any(low >= high):
+            return SetParametersResult(successful=False,
+                                       reason="workspace_min must be below workspace_max")
+        if changes:
+            try:
+                self._param_scene = live_update(self._param_scene, changes)
+            except SceneError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+            if not self.queue.put_command("parameters", changes):
+                return SetParametersResult(successful=False, reason=self._busy())
         return SetParametersResult(successful=True)
 
-    def _on_timer(self) -> None:
-        if self.paused or self.error is not None:
-            self._publish(force=False)
+    def _parameters_set(self, params) -> None:
+        """After a change took effect: refresh what the input threads read, and
+        queue what the stepping thread must apply."""
+        names = {p.name for p in params}
+        if names & {"stale_pose_timeout", "workspace_min", "workspace_max"}:
+            self._limits = self._pose_limits()
+        if names & {"colour_by", "wireframe"}:
+            self.queue.put_command("frames", self.get_parameter("colour_by").value,
+                                   bool(self.get_parameter("wireframe").value))
+        if "paused" in names:
+            self.queue.put_command("pause", bool(self.get_parameter("paused").value))
+        if "realtime" in names:
+            self.queue.put_command("realtime")
+
+    def _busy(self) -> str:
+        self.rejected["requests"] += 1
+        return (f"refused: {self.queue.max_commands} requests are waiting for the simulator; "
+                "try again")
+
+    # -- inputs (input threads; never wait for a step) --------------------------
+    def _on_pose(self, name: str, msg: PoseStamped) -> None:
+        self.poses_received += 1
+        try:
+            recorder = self.recorder
+            if recorder is not None:
+                recorder.record_message(f"grasp/{name}/pose", serialize_message(msg))
+            p, q = msg.pose.position, msg.pose.orientation
+            reason, position, orientation = judge_pose(
+                msg.header.frame_id, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w],
+                msg.header.stamp.sec, msg.header.stamp.nanosec, self._now_s(), self._limits)
+        except Exception as exc:
+            self.internal_errors += 1
+            reason = "invalid"
+            self.get_logger().error(f"grasp/{name}/pose: {exc!r}", throttle_duration_sec=5.0)
+        if reason is not None:
+            self.rejected[reason] += 1
+            self.get_logger().warning(
+                f"grasp/{name}/pose rejected ({reason}); {self._rejected_poses()} "
+                "rejected so far", throttle_duration_sec=2.0)
             return
-        if self.get_parameter("realtime").value:
-            # Catch up with the wall clock, at most a few steps per tick.
-            behind = (time.monotonic() - self._wall_start) - (self.sim.time - self._sim_start)
-            steps = min(max(int(behind / self.sim.time_step), 0), 3)
+        self.queue.put_target(name, position, orientation)
+
+    def _rejected_poses(self) -> int:
+        return sum(self.rejected[k] for k in POSE_REJECTIONS) + self.rejected["invalid"]
+
+    def _queued(self, response, *command, what: str):
+        if self.queue.put_command(*command):
+            response.success = True
+            response.message = f"{what}: queued, applies before step {self.sim.step_count + 1}"
         else:
-            steps = 1
-        for _ in range(steps):
-            self._step_once()
-        self._publish(force=False)
+            response.success, response.message = False, self._busy()
+        return response
+
+    def _on_close(self, name: str, request, response):
+        return self._queued(response, "close", name, bool(request.data),
+                            what=f"grasp {name} {'close' if request.data else 'open'}")
+
+    def _on_reset(self, request, response):
+        return self._queued(response, "reset", what="reset to the scene's initial state")
+
+    def _on_step(self, request, response):
+        return self._queued(response, "step", what="one step")
+
+    def _on_pause(self, request, response):
+        return self._queued(response, "pause", bool(request.data),
+                            what="pause" if request.data else "resume")
+
+    def _on_record(self, request, response):
+        # The recorder is swapped atomically; the stepping thread only reads it.
+        if request.data and self.recorder is None:
+            response.message = self._start_recording(self.get_parameter("record_path").value
+                                                     if self.record_error is None else "")
+            response.success = self.recorder is not None
+        elif request.data:
+            response.success, response.message = True, f"already recording to {self.recorder.path}"
+        else:
+            response.message = self._stop_recording()
+            response.success = self.record_error is None
+        return response
+
+    # -- the stepping thread -----------------------------------------------------
+    def _on_timer(self) -> None:
+        try:
+            self._tick()
+        except Exception as exc:            # never let a tick end the node
+            if not self.context.ok():
+                return                      # shutting down: publishing may fail
+            self.internal_errors += 1
+            self.get_logger().error(f"internal error in a tick: {exc!r}",
+                                    throttle_duration_sec=5.0)
+
+    def _tick(self) -> None:
+        self._apply_inputs()
+        waiting = False
+        if not self.paused and self.error is None:
+            now = self._pace_now()
+            waiting = now is None
+            if now is not None and self._pace_start is None:     # /clock has started
+                self._pace_start, self._sim_start = now, self.sim.time
+            if self.get_parameter("realtime").value:
+                if now is not None:
+                    behind = (now - self._pace_start) - (self.sim.time - self._sim_start)
+                    steps = min(max(int(behind / self.sim.time_step), 0), MAX_STEPS_PER_TICK)
+                else:
+                    steps = 0
+            else:
+                steps = 1
+            for _ in range(steps):
+                if not self._step_once():
+                    break
+        self._waiting_for_clock = waiting
+        now = time.monotonic()
+        if now >= self._next_publish:
+            self._publish()
+            period = 1.0 / self.get_parameter("publish_rate").value
+            # A fixed schedule: the rate is exact on average whatever the tick
+            # jitter; after a stall, restart it instead of bursting.
+            self._next_publish = max(self._next_publish + period, now - period)
+        if now >= self._next_diagnostics:
+            self._publish_diagnostics()
+            self._next_diagnostics = max(self._next_diagnostics + DIAGNOSTICS_PERIOD, now)
+
+    def _apply_inputs(self) -> None:
+        for command in self.queue.take():
+            kind = command[0]
+            try:
+                if kind == "target":
+                    _, name, position, orientation = command
+                    self.sim.set_grasp_target(name, position, orientation)
+                    self._record_input("grasp_target", grasp=name, position=position.tolist(),
+                                       orientation=orientation.tolist())
+                elif kind == "close":
+                    _, name, close = command
+                    (self.sim.close_grasp if close else self.sim.open_grasp)(name)
+                    self._record_input("grasp_close" if close else "grasp_open", grasp=name)
+                elif kind == "parameters":
+                    self.sim.update_parameters(command[1])
+                    self._record_input("parameters", changes=command[1])
+                elif kind == "reset":
+                    self._build_sim()
+                    self._param_scene = self.sim.scene
+                    self._record_input("reset", scene=scene_to_dict(self.sim.scene))
+                    self._session_wall_start = time.monotonic()
+                    self._reset_pacing()
+                    self._next_publish = time.monotonic()
+                elif kind == "step":
+                    self._step_once()
+                    self._next_publish = time.monotonic()
+                elif kind == "pause":
+                    if self.paused != command[1]:
+                        self._record_input("pause" if command[1] else "resume")
+                    self.paused = command[1]
+                    if not self.paused:
+                        self._reset_pacing()
+                elif kind == "frames":
+                    self.frames.colour_by, self.frames.wireframe = command[1], command[2]
+                elif kind == "realtime":
+                    self._reset_pacing()
+                    self._make_timer()
+            except (KeyError, ValueError, SceneError) as exc:
+                self.rejected["invalid"] += 1
+                self.get_logger().warning(f"input {kind} refused: {exc}",
+                                          throttle_duration_sec=2.0)
 
     def _step_once(self) -> bool:
         try:
             self.sim.step()
-            return True
         except SimulationError as exc:
-            self.error = str(exc)
-            self.get_logger().error(f"simulation stopped: {exc}; call cloth/reset")
+            self._stop_simulation(str(exc))
             return False
+        except Exception as exc:            # a defect, not an input: still never fatal
+            self.internal_errors += 1
+            self._stop_simulation(f"{type(exc).__name__}: {exc}")
+            return False
+        self._sim_time = self.sim.time
+        if self.clock_pub is not None:
+            self.clock_pub.publish(ClockMsg(clock=_time_msg(self.sim.time)))
+        return True
 
-    # -- inputs --------------------------------------------------------------
-    def _on_pose(self, name: str, msg: PoseStamped) -> None:
-        """Check a pose when it arrives (stamps are judged now, not after a step)."""
-        if self.recorder is not None:
-            with self._lock:
-                self.recorder.record_message(f"grasp/{name}/pose", serialize_message(msg))
-        reason = self._check_pose(msg)
-        if reason is not None:
-            self.rejected[reason] += 1
-            self.get_logger().warning(
-                f"grasp/{name}/pose rejected ({reason}); {sum(self.rejected.values())} "
-                "rejected so far", throttle_duration_sec=2.0)
-            return
-        p, q = msg.pose.position, msg.pose.orientation
-        with self._lock:
-            self.sim.set_grasp_target(name, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
-            self._record_input("grasp_target", grasp=name, position=[p.x, p.y, p.z],
-                               orientation=[q.x, q.y, q.z, q.w])
+    def _stop_simulation(self, reason: str) -> None:
+        self.error = reason
+        self.get_logger().error(f"simulation stopped: {reason}; call cloth/reset")
 
-    def _check_pose(self, msg: PoseStamped) -> str | None:
-        if msg.header.frame_id not in ("", self.frame_id):
-            return "frame"
-        p, q = msg.pose.position, msg.pose.orientation
-        values = np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w])
-        if not np.all(np.isfinite(values)) or np.linalg.norm(values[3:]) < 1e-9:
-            return "not_finite"
-        timeout = self.get_parameter("stale_pose_timeout").value
-        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        if timeout > 0 and stamp > 0:
-            now = self.get_clock().now().nanoseconds * 1e-9
-            if now - stamp > timeout:
-                return "stale"
-        return None
+    # -- clocks ------------------------------------------------------------------
+    def _uses_ros_clock(self) -> bool:
+        """Pace to the ROS clock: use_sim_time with /clock from another node."""
+        return bool(self.get_parameter("use_sim_time").value) and not self.publish_clock
 
-    def _on_close(self, name: str, request, response):
-        try:
-            (self.sim.close_grasp if request.data else self.sim.open_grasp)(name)
-            self._record_input("grasp_close" if request.data else "grasp_open", grasp=name)
-            response.success = True
-            response.message = f"grasp {name} {'closed' if request.data else 'opened'}"
-        except (KeyError, ValueError) as exc:
-            response.success, response.message = False, str(exc)
-        return response
+    def _pace_now(self) -> float | None:
+        """Seconds on the pacing clock, or None while /clock has not started."""
+        if self._uses_ros_clock():
+            ns = self.get_clock().now().nanoseconds
+            return ns * 1e-9 if ns > 0 else None
+        return time.monotonic()
 
-    def _on_reset(self, request, response):
-        self._build_sim()
-        self._record_input("reset", scene=scene_to_dict(self.sim.scene))
-        self._sim_start, self._wall_start = 0.0, time.monotonic()
-        self._session_wall_start = self._wall_start
-        response.success, response.message = True, "reset to the scene's initial state"
-        self._publish(force=True)
-        return response
+    def _reset_pacing(self) -> None:
+        self._pace_start = self._pace_now()     # None until /clock starts
+        self._sim_start = self.sim.time
+        self._progress = collections.deque()
 
-    def _on_step(self, request, response):
-        ok = self._step_once()
-        self._publish(force=True)
-        response.success = ok
-        response.message = f"t = {self.sim.time:.4f} s" if ok else self.error
-        return response
+    def _now_s(self) -> float:
+        """The clock outputs are stamped with (s): simulated time with publish_clock."""
+        if self.publish_clock:
+            return self._sim_time
+        return self.get_clock().now().nanoseconds * 1e-9
 
-    def _on_pause(self, request, response):
-        if self.paused != bool(request.data):
-            self._record_input("pause" if request.data else "resume")
-        self.paused = bool(request.data)
-        if not self.paused:
-            self._sim_start, self._wall_start = self.sim.time, time.monotonic()
-        response.success, response.message = True, "paused" if self.paused else "running"
-        return response
+    def _stamp(self) -> tuple[int, int]:
+        if self.publish_clock:
+            t = _time_msg(self.sim.time)
+            return t.sec, t.nanosec
+        return self.get_clock().now().seconds_nanoseconds()
 
-    # -- recording -----------------------------------------------------------
+    # -- recording -----------------------------------------------------------------
     def _record_input(self, kind: str, **payload) -> None:
-        if self.recorder is not None:
-            self.recorder.record_input(self.sim, kind, self._now_ns(), **payload)
+        recorder = self.recorder
+        if recorder is not None:
+            recorder.record_input(self.sim, kind, self._now_ns(), **payload)
 
     def _now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
@@ -301,7 +517,7 @@ class ClothLodNode(Node):
         if not path:
             path = time.strftime("bags/cloth_lod_%Y%m%d_%H%M%S")
         try:
-            self.recorder = SessionRecorder(
+            recorder = SessionRecorder(
                 path, self.get_namespace(), self.get_parameter("record_compression").value,
                 grasp_names=[g.name for g in self.sim.grasps])
         except BagError as exc:
@@ -315,10 +531,11 @@ class ClothLodNode(Node):
                 "recording from the start (record:=true, or call cloth/reset after this)")
         params = {n: self.get_parameter(n).value
                   for n in self.list_parameters([], 0).names}
-        self.recorder.start(self.sim, params, self.get_parameter("grid_resolution").value,
-                            self._now_ns())
-        self.get_logger().info(f"recording to {self.recorder.path}")
-        return f"recording to {self.recorder.path}"
+        recorder.start(self.sim, params, self.get_parameter("grid_resolution").value,
+                       self._now_ns())
+        self.recorder = recorder
+        self.get_logger().info(f"recording to {recorder.path}")
+        return f"recording to {recorder.path}"
 
     def _stop_recording(self) -> str:
         recorder, self.recorder = self.recorder, None
@@ -328,67 +545,116 @@ class ClothLodNode(Node):
         if recorder.failed:
             self.record_error = recorder.failed
             return f"recording failed: {recorder.failed}"
+        text = f"recording finished: {recorder.writer.message_count} messages, {recorder.path}"
         if self.context.ok():        # no ROS logging once the context is shut down
-            self.get_logger().info(f"recording finished: {recorder.path}")
-        return f"wrote {recorder.path}"
-
-    def _on_record(self, request, response):
-        if request.data and self.recorder is None:
-            response.message = self._start_recording(self.get_parameter("record_path").value
-                                                     if self.record_error is None else "")
-            response.success = self.recorder is not None
-        elif request.data:
-            response.success, response.message = True, f"already recording to {self.recorder.path}"
+            self.get_logger().info(text)
         else:
-            response.message = self._stop_recording()
-            response.success = self.record_error is None
-        return response
+            print(f"[cloth_lod_node] {text}", flush=True)
+        return text
 
     def _recording_status(self) -> str:
-        if self.recorder is not None and self.recorder.failed:
-            self.record_error = self.recorder.failed
+        recorder = self.recorder
+        if recorder is not None and recorder.failed:
+            self.record_error = recorder.failed
         if self.record_error is not None:
             return f"failed: {self.record_error}"
-        if self.recorder is None:
+        if recorder is None:
             return "off"
-        dropped = self.recorder.dropped_frames
-        return f"on: {self.recorder.path}" + (f" ({dropped} frames dropped: disk behind)"
-                                               if dropped else "")
+        dropped = recorder.dropped_frames
+        return f"on: {recorder.path}" + (f" ({dropped} frames dropped: disk behind)"
+                                         if dropped else "")
 
     def destroy_node(self):
-        with self._lock:
-            self._stop_recording()
+        self._stop_recording()
         return super().destroy_node()
 
-    # -- outputs -------------------------------------------------------------
-    def _publish(self, force: bool) -> None:
+    # -- outputs -------------------------------------------------------------------
+    def _rates(self, now: float) -> tuple[float | None, float | None]:
+        """Real-time factor and publish rate over the last RATE_WINDOW seconds."""
+        self._progress.append((now, self.sim.time))
+        self._publishes.append(now)
+        while self._progress and now - self._progress[0][0] > RATE_WINDOW:
+            self._progress.popleft()
+        while self._publishes and now - self._publishes[0] > RATE_WINDOW:
+            self._publishes.popleft()
+        rtf = None
+        if len(self._progress) > 1 and now - self._progress[0][0] > 0.5 * RATE_WINDOW:
+            rtf = (self.sim.time - self._progress[0][1]) / (now - self._progress[0][0])
+        rate = None
+        if len(self._publishes) > 1:
+            rate = (len(self._publishes) - 1) / (self._publishes[-1] - self._publishes[0])
+        return rtf, rate
+
+    def _health(self, rtf):
+        measured = (rtf if self.get_parameter("realtime").value and not self._uses_ros_clock()
+                    else None)
+        return health(error=self.error, stats=self.sim.stats[-1] if self.sim.stats else None,
+                      strain_warn=self.get_parameter("strain_warn").value,
+                      speed_warn=self.get_parameter("speed_warn").value,
+                      real_time_factor=measured,
+                      waiting_for_clock=getattr(self, "_waiting_for_clock", False),
+                      recording_failed=self._recording_status().startswith("failed"),
+                      paused=self.paused)
+
+    def _publish(self) -> None:
         now = time.monotonic()
-        if not force and now - self._last_publish < 1.0 / self.get_parameter("publish_rate").value:
-            return
-        self._last_publish = now
         sim = self.sim
-        stamp = self.get_clock().now()
-        wall = now - self._wall_start
+        rtf, rate = self._rates(now)
+        if self.paused or self.error is not None:
+            self._progress.clear()
+        wall = (self._pace_now() or 0.0) - (self._pace_start or 0.0)
         recording = self._recording_status()
+        level, message = self._health(rtf)
+        self._last_level = level
         values = {"paused": str(self.paused).lower(),
                   "wall_time_s": f"{now - self._session_wall_start:.6f}",
                   "real_time_factor": f"{(sim.time - self._sim_start) / max(wall, 1e-9):.3f}",
-                  "rejected_poses": str(sum(self.rejected.values())),
+                  "recent_real_time_factor": "" if rtf is None else f"{rtf:.3f}",
+                  "publish_rate_hz": "" if rate is None else f"{rate:.2f}",
+                  "poses_received": str(self.poses_received),
+                  "rejected_poses": str(self._rejected_poses()),
+                  "internal_errors": str(self.internal_errors),
                   "recording": recording}
         values.update({f"rejected_{k}": str(v) for k, v in self.rejected.items()})
-        level, message = None, "paused" if self.paused else "running"
-        if self.error is not None:
-            level, message = DiagnosticStatus.ERROR, self.error
-        elif recording.startswith("failed"):
-            level, message = DiagnosticStatus.WARN, "recording failed; simulation running"
-        sec, nanosec = stamp.seconds_nanoseconds()
-        frames = self.frames.build(sim, (sec, nanosec), values, level, message)
+        frames = self.frames.build(sim, self._stamp(), values, bytes([level]), message)
         self.markers_pub.publish(frames["cloth/markers"])
         self.points_pub.publish(frames["cloth/points"])
         self.grid_pub.publish(frames["cloth/grid"])
         self.stats_pub.publish(frames["cloth/lod_stats"])
-        if self.recorder is not None:
-            self.recorder.record_frame(frames, stamp.nanoseconds)
+        self._last_values, self._last_message = values, message
+        recorder = self.recorder
+        if recorder is not None:
+            recorder.record_frame(frames, self._now_ns())
+
+    def _publish_diagnostics(self) -> None:
+        """``/diagnostics``: one status with numbers a tool can plot."""
+        sim, last = self.sim, (self.sim.stats[-1] if self.sim.stats else None)
+        values = {"sim_time_s": sim.time, "step_count": sim.step_count,
+                  "particles": sim.mesh.vertex_count, "triangles": sim.mesh.triangle_count,
+                  "poses_received": self.poses_received,
+                  "rejected_poses": self._rejected_poses(),
+                  "rejected_requests": self.rejected["requests"],
+                  "internal_errors": self.internal_errors}
+        previous = getattr(self, "_last_values", {})
+        for key in ("recent_real_time_factor", "publish_rate_hz"):
+            if previous.get(key):
+                values[key] = float(previous[key])
+        if last is not None:
+            for key in ("step_ms", "lod_ms", "solve_ms", "cg_iterations", "max_strain",
+                        "max_speed", "kinetic_energy", "contact_count"):
+                values[key] = getattr(last, key)
+        message = getattr(self, "_last_message", "starting")
+        self.diagnostics_pub.publish(standard_diagnostics(
+            f"{self.get_name()}: simulation", sim.scene.name, self._last_level, message,
+            values, self._stamp()))
+
+
+def _time_msg(seconds: float):
+    """builtin_interfaces/Time of a non-negative time in s."""
+    msg = ClockMsg().clock
+    ns = int(round(seconds * 1e9))
+    msg.sec, msg.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
+    return msg
 
 
 class _RosLogHandler(logging.Handler):
@@ -417,8 +683,8 @@ def main(args=None) -> None:
     node = None
     try:
         node = ClothLodNode()
-        # Two threads: one steps and publishes, the other takes poses and services.
-        executor = MultiThreadedExecutor(num_threads=2)
+        # Threads: stepping and publishing; poses; service calls; parameters.
+        executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):

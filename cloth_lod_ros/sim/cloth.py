@@ -40,9 +40,31 @@ from .metrics import PointLocator
 from .pins import Pin
 from .state import ClothState, SimulationError, StepStats
 
-__all__ = ["ClothSim"]
+__all__ = ["ClothSim", "live_update"]
 
 log = logging.getLogger(__name__)
+
+
+def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
+    """The scene with ``changes`` (``{"section.field": value}``) applied, validated
+    as a whole; only fields a running simulation can take (material except
+    density, LOD except ``enabled`` and ``initial_level``).  Pure: ``scene`` is not
+    modified, so a caller can validate without touching a running simulator.
+
+    Raises:
+        SceneError: a field is unknown, not live, or the result is invalid.
+    """
+    from .config import scene_from_dict, scene_to_dict
+    data = scene_to_dict(scene)
+    for path, value in changes.items():
+        section, _, key = str(path).partition(".")
+        # Density sets the particle masses, built once with the mesh.
+        if (section not in ("material", "lod") or key not in data.get(section, {})
+                or path in ("material.density", "lod.enabled", "lod.initial_level")):
+            raise SceneError(f"{path}: not a live parameter (material.* except density, "
+                             "lod.* except enabled and initial_level)")
+        data[section][key] = value
+    return scene_from_dict(data)
 
 
 class ClothSim:
@@ -362,17 +384,7 @@ class ClothSim:
             SceneError: a field is unknown, not live, or the resulting scene
                 is invalid; nothing is changed.
         """
-        from .config import scene_from_dict, scene_to_dict
-        data = scene_to_dict(self.scene)
-        for path, value in changes.items():
-            section, _, key = path.partition(".")
-            # Density sets the particle masses, built once with the mesh.
-            if (section not in ("material", "lod") or key not in data.get(section, {})
-                    or path in ("material.density", "lod.enabled", "lod.initial_level")):
-                raise SceneError(f"{path}: not a live parameter (material.* except density, "
-                                 "lod.* except enabled and initial_level)")
-            data[section][key] = value
-        scene = scene_from_dict(data)
+        scene = live_update(self.scene, changes)
         self.scene = scene
         self.solver.material = scene.material
         if self.lod_policy is not None:
