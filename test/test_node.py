@@ -27,8 +27,9 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import SetParametersAtomically  # noqa: E402
 from rclpy.node import Node  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
-from std_srvs.srv import SetBool  # noqa: E402
+from std_srvs.srv import SetBool, Trigger  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
@@ -286,3 +287,207 @@ def test_signals_end_the_node_cleanly_within_a_second(running, sig):
     code = node.proc.wait(timeout=5)
     assert code == 0
     assert time.monotonic() - started < 1.0
+
+
+# -- robustness: inputs judged, never fatal, never waiting (issue: the node under real use) --
+def pose_script(body: str) -> subprocess.Popen:
+    """A driver process with a raw publisher per grasp (``pub(name)``) and ``pose()``."""
+    return driver(textwrap.dedent("""
+        def pub(name):
+            send(name, 0.5, 1.0, 1.0, stamp_now=True)      # creates and discovers it
+            return pubs[name]
+        def pose(x, y, z, qx=0.0, qy=0.0, qz=0.0, qw=1.0, sec=None, nanosec=0):
+            msg = PoseStamped()
+            msg.header.frame_id = "world"
+            if sec is None:
+                msg.header.stamp = node.get_clock().now().to_msg()
+            else:
+                msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = x, y, z
+            q = msg.pose.orientation
+            q.x, q.y, q.z, q.w = qx, qy, qz, qw
+            return msg
+    """) + textwrap.dedent(body))
+
+
+def level(node):
+    return node.stats[-1].status[0].level[0]
+
+
+def test_hostile_poses_are_judged_and_none_stops_the_node(running):
+    node = running()
+    proc = pose_script("""
+        p = pub("hand")
+        now = node.get_clock().now().to_msg().sec
+        for _ in range(20):
+            p.publish(pose(0.5, 1.0, 1.0, qx=1e200, qy=1e200, qw=0.0))   # norm overflows
+            p.publish(pose(0.5, 1.0, 1.0, sec=now + 3600))               # future
+            p.publish(pose(0.5, 1.0, 1.0, sec=-5))                       # negative
+            p.publish(pose(0.5, 1.0, 1.0, sec=now, nanosec=1_500_000_000))
+            p.publish(pose(1e6, 0.0, 0.0))                               # outside the workspace
+            time.sleep(0.01)
+    """)
+    proc.wait(timeout=30)
+    assert node.spin_until(lambda: all(int(node.stat(f"rejected_{k}")) > 0 for k in
+                                       ("future", "bad_stamp", "workspace")), 10.0)
+    count = len(node.grid)
+    assert node.spin_until(lambda: len(node.grid) > count + 10, 10.0)   # still publishing
+    assert node.proc.poll() is None
+    assert int(node.stat("internal_errors")) == 0
+    assert level(node) < 2                           # WARN at most (a loaded machine is slow)
+    assert np.all(np.abs(node.grid_point(GRID // 2, GRID - 1)) < 5.0)  # far target never applied
+
+
+def test_a_failing_step_stops_the_simulation_not_the_node(observer, tmp_path):
+    scene = tmp_path / "heavy.yaml"
+    scene.write_text(SCENE.replace("simulation: {time_step: 0.02, duration: 100.0}",
+                                   "simulation: {time_step: 0.02, duration: 100.0, "
+                                   "gravity: [0, 0, -1.0e12]}"))
+    node = Running(observer, scene)
+    try:
+        assert node.spin_until(lambda: level(node) == 2, 10.0)
+        assert "simulation stopped" in node.stats[-1].status[0].message
+        response = node.call(Trigger, "cloth/reset", Trigger.Request())
+        assert response.success
+        count = len(node.stats)
+        assert node.spin_until(lambda: len(node.stats) > count + 5, 10.0)
+        assert node.proc.poll() is None
+    finally:
+        assert node.stop() == 0
+
+
+def test_a_burst_of_service_calls_is_answered_every_one(running):
+    node = running()
+    kinds = [(SetBool, "grasp/other/close", lambda k: SetBool.Request(data=bool(k % 2))),
+             (Trigger, "cloth/step", lambda k: Trigger.Request()),
+             (SetBool, "cloth/pause", lambda k: SetBool.Request(data=bool(k % 2))),
+             (Trigger, "cloth/reset", lambda k: Trigger.Request())]
+    clients = []
+    # A burst's answers arrive together: the caller needs a response queue as
+    # deep as its burst (the default keeps the last 10).
+    deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    for srv, name, _ in kinds:
+        client = node.observer.create_client(srv, name, qos_profile=deep)
+        assert client.wait_for_service(timeout_sec=10.0)
+        clients.append(client)
+    futures = [clients[k % 4].call_async(kinds[k % 4][2](k)) for k in range(200)]
+    node.spin_until(lambda: all(f.done() for f in futures), 30.0)
+    for client in clients:
+        node.observer.destroy_client(client)
+    answered = [f.result() for f in futures if f.done()]
+    assert len(answered) == 200
+    assert all(r.success or "refused" in r.message for r in answered)
+    assert node.proc.poll() is None
+
+
+def test_run_time_parameters_do_what_they_say(running):
+    node = running()
+    bad = node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
+                    SetParametersAtomically.Request(parameters=[Parameter(
+                        name="colour_by", value=ParameterValue(
+                            type=ParameterType.PARAMETER_STRING, string_value="purple"))])).result
+    assert not bad.successful and "colour_by" in bad.reason
+
+    def set_bool(name, value):
+        return node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
+                         SetParametersAtomically.Request(parameters=[Parameter(
+                             name=name, value=ParameterValue(
+                                 type=ParameterType.PARAMETER_BOOL, bool_value=value))])).result
+
+    assert set_bool("wireframe", False).successful
+    assert node.spin_until(lambda: not any(m.ns == "wireframe" for m in node.markers[-1].markers),
+                           10.0)
+    assert set_bool("paused", True).successful
+    assert node.spin_until(lambda: node.stat("paused") == "true", 10.0)
+    frozen = node.stat("sim_time_s")
+    node.spin_for(0.5)
+    assert node.stat("sim_time_s") == frozen
+    assert set_bool("paused", False).successful
+    assert node.spin_until(lambda: node.stat("sim_time_s") != frozen, 10.0)
+
+
+def test_publish_rate_follows_the_parameter(observer, tmp_path):
+    """Measured on the node's own stamps, so the observer's delays do not count
+    (a light scene, so the simulation keeps real time on a loaded machine)."""
+    scene = tmp_path / "light.yaml"
+    scene.write_text(SCENE.replace("level: 5", "level: 3"))
+    node = Running(observer, scene, "publish_rate:=30.0")
+    # Only lod_stats: decoding big MarkerArrays in Python would slow the observer.
+    for sub in node.subs[:1] + node.subs[2:]:
+        node.observer.destroy_subscription(sub)
+    node.subs = node.subs[1:2]
+    node.spin_for(1.0)
+    first = len(node.stats)
+    node.spin_for(3.0)
+    stamps = [s.header.stamp.sec + 1e-9 * s.header.stamp.nanosec for s in node.stats[first:]]
+    rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+    assert node.stop() == 0
+    assert 28.5 < rate < 31.5, rate                  # within 5 %
+
+
+def test_simulated_time_on_clock_and_on_every_stamp(running, observer):
+    from rosgraph_msgs.msg import Clock
+    clocks = []
+    sub = observer.create_subscription(Clock, "/clock", clocks.append, 10)
+    try:
+        node = running("publish_clock:=true")
+        assert node.spin_until(lambda: len(clocks) > 5, 10.0)
+        stamp = node.stats[-1].header.stamp
+        assert abs(stamp.sec + 1e-9 * stamp.nanosec - float(node.stat("sim_time_s"))) < 1e-6
+        assert clocks[-1].clock.sec < 1000        # simulated seconds, not the epoch
+    finally:
+        observer.destroy_subscription(sub)
+
+
+def test_use_sim_time_without_clock_waits_and_says_so(running):
+    node = running("use_sim_time:=true")
+    assert node.spin_until(lambda: "/clock" in node.stats[-1].status[0].message, 10.0)
+    assert float(node.stat("sim_time_s")) == 0.0
+    assert level(node) == 1
+
+
+def test_standard_diagnostics_carry_numbers(running, observer):
+    seen = []
+    sub = observer.create_subscription(DiagnosticArray, "/diagnostics", seen.append, 10)
+    try:
+        node = running()
+        assert node.spin_until(lambda: len(seen) >= 2, 10.0)
+        values = {kv.key: kv.value for kv in seen[-1].status[0].values}
+        assert seen[-1].status[0].name == "cloth_lod_node: simulation"
+        for key in ("sim_time_s", "triangles", "step_ms", "max_strain", "rejected_poses"):
+            float(values[key])                       # a number a plotting tool can read
+    finally:
+        observer.destroy_subscription(sub)
+
+
+def test_stopping_logs_what_the_recording_holds(observer, scene_file, tmp_path):
+    bag = tmp_path / "stop_bag"
+    node = Running(observer, scene_file, "record:=true", f"record_path:={bag}")
+    node.spin_for(1.0)
+    assert node.stop() == 0
+    out = node.proc.stdout.read()
+    assert "publishing" in out and "cloth/markers" in out        # the start-up line
+    assert "recording finished:" in out and str(bag) in out and "messages" in out
+    assert "never retrieved" not in out and "Traceback" not in out
+
+
+def test_poses_at_100_hz_with_recording_are_all_received(observer, tmp_path):
+    """1,500 poses at 100 Hz on grasp_lift while recording: every one is taken
+    and judged (none waits for a step, so none is dropped or judged late)."""
+    node = Running(observer, "grasp_lift", "record:=true", f"record_path:={tmp_path / 'b'}")
+    try:
+        proc = pose_script("""
+            p = pub("left")
+            start = time.monotonic()
+            for k in range(1500):
+                p.publish(pose(-0.4, 0.5 + 0.1 * math.sin(0.01 * k), 0.6))
+                time.sleep(max(0.0, start + 0.01 * (k + 1) - time.monotonic()))
+        """)
+        proc.wait(timeout=60)
+        assert node.spin_until(lambda: int(node.stat("poses_received")) >= 1501, 15.0), \
+            node.stat("poses_received")
+        judged = int(node.stat("poses_received"))
+        stale = int(node.stat("rejected_stale")) + int(node.stat("rejected_future"))
+        assert judged >= 0.99 * 1501 and stale <= 0.01 * judged
+    finally:
+        assert node.stop() == 0

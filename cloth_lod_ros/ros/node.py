@@ -398,8 +398,10 @@ class ClothLodNode(Node):
                     steps = 0
             else:
                 steps = 1
-            for _ in range(steps):
-                if not self._step_once():
+            for k in range(steps):
+                # Publishing on schedule comes first: a simulation slower than
+                # real time catches up only until the next frame is due.
+                if (k and time.monotonic() >= self._next_publish) or not self._step_once():
                     break
         self._waiting_for_clock = waiting
         now = time.monotonic()
