@@ -491,3 +491,111 @@ def test_poses_at_100_hz_with_recording_are_all_received(observer, tmp_path):
         assert judged >= 0.99 * 1501 and stale <= 0.01 * judged
     finally:
         assert node.stop() == 0
+
+
+def test_fuzzed_poses_parameters_and_service_calls_never_stop_the_node(observer, scene_file):
+    """Property-based: random poses (any float, frame, stamp), parameter sets (any
+    declared name, any type) and service calls from this process; after every
+    batch the node is alive; at the end it still publishes and has counted
+    every pose it was sent."""
+    from geometry_msgs.msg import PoseStamped
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+    from rcl_interfaces.srv import SetParameters
+
+    node = Running(observer, scene_file)
+    deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    pubs = {g: observer.create_publisher(PoseStamped, f"grasp/{g}/pose", deep)
+            for g in ("hand", "other")}
+    node.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()), 10.0)
+    clients = {name: observer.create_client(srv, name, qos_profile=deep) for name, srv in (
+        ("cloth_lod_node/set_parameters", SetParameters), ("cloth/reset", Trigger),
+        ("cloth/step", Trigger), ("cloth/pause", SetBool), ("grasp/hand/close", SetBool))}
+    for client in clients.values():
+        assert client.wait_for_service(timeout_sec=10.0)
+    sent = {"poses": 0, "parameters": 0, "services": 0}
+    futures = []
+    number = st.floats(allow_nan=True, allow_infinity=True) | st.floats(-2.0, 2.0)
+    pose = st.tuples(st.just("pose"), st.sampled_from(sorted(pubs)),
+                     st.lists(number, min_size=7, max_size=7),
+                     st.sampled_from(["world", "", "map"]),
+                     st.none() | st.integers(-2**31, 2**31 - 1), st.integers(0, 2**32 - 1))
+    names = ["publish_rate", "realtime", "paused", "stale_pose_timeout", "colour_by",
+             "wireframe", "workspace_min", "workspace_max", "strain_warn", "scene",
+             "lod.refine_threshold", "lod.coarsen_threshold", "material.bend_stiffness",
+             "material.air_drag", "use_sim_time", "no_such_parameter"]
+    value = st.one_of(
+        st.builds(lambda v: ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=v),
+                  number),
+        st.builds(lambda v: ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=v),
+                  st.booleans()),
+        st.builds(lambda v: ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                           string_value=v), st.text(max_size=20)),
+        st.builds(lambda v: ParameterValue(type=ParameterType.PARAMETER_INTEGER,
+                                           integer_value=v), st.integers(-2**63, 2**63 - 1)),
+        st.builds(lambda v: ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY,
+                                           double_array_value=v),
+                  st.lists(number, max_size=4)))
+    parameter = st.tuples(st.just("parameter"), st.sampled_from(names), value)
+    service = st.tuples(st.just("service"), st.sampled_from(sorted(clients)[1:]),
+                        st.booleans())
+
+    @settings(max_examples=30, deadline=None, derandomize=True,
+              suppress_health_check=list(HealthCheck))
+    @given(st.lists(st.one_of(pose, pose, parameter, service), min_size=1, max_size=25))
+    def batch(actions):
+        for action in actions:
+            if action[0] == "pose":
+                _, grasp, v, frame, sec, nanosec = action
+                msg = PoseStamped()
+                msg.header.frame_id = frame
+                if sec is None:
+                    msg.header.stamp = observer.get_clock().now().to_msg()
+                else:
+                    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+                p, q = msg.pose.position, msg.pose.orientation
+                p.x, p.y, p.z, q.x, q.y, q.z, q.w = v
+                pubs[grasp].publish(msg)
+                sent["poses"] += 1
+            elif action[0] == "parameter":
+                request = SetParameters.Request(parameters=[Parameter(name=action[1],
+                                                                      value=action[2])])
+                futures.append(clients["cloth_lod_node/set_parameters"].call_async(request))
+                sent["parameters"] += 1
+            else:
+                _, name, data = action
+                srv = clients[name].srv_type
+                request = srv.Request(data=data) if srv is SetBool else srv.Request()
+                futures.append(clients[name].call_async(request))
+                sent["services"] += 1
+        node.spin_for(0.05)
+        assert node.proc.poll() is None
+
+    try:
+        batch()
+        assert node.spin_until(lambda: all(f.done() for f in futures), 30.0), \
+            f"{sum(not f.done() for f in futures)} of {len(futures)} calls unanswered"
+        # Let the node settle on sane settings, then check it still publishes and
+        # counted every pose.
+        reset = [Parameter(name=n, value=ParameterValue(type=ParameterType.PARAMETER_BOOL,
+                                                        bool_value=b))
+                 for n, b in (("paused", False), ("use_sim_time", False), ("realtime", True))]
+        node.call(SetParameters, "cloth_lod_node/set_parameters",
+                  SetParameters.Request(parameters=reset))
+        assert node.spin_until(lambda: int(node.stat("poses_received")) >= sent["poses"], 20.0)
+        count = len(node.stats)
+        assert node.spin_until(lambda: len(node.stats) > count + 5, 10.0)
+        stats = {kv.key: kv.value for kv in node.stats[-1].status[0].values}
+        rejected = {k[len("rejected_"):]: int(v) for k, v in stats.items()
+                    if k.startswith("rejected_") and k != "rejected_poses"}
+        print(f"\nfuzz: sent {sent}; node received {stats['poses_received']} poses, "
+              f"rejected {rejected}; internal errors {stats['internal_errors']}; "
+              f"{sum(r.successful for f in futures for r in getattr(f.result(), 'results', []))}"
+              f" of {sent['parameters']} parameter sets accepted; node alive")
+        assert int(stats["poses_received"]) == sent["poses"]
+    finally:
+        for client in clients.values():
+            observer.destroy_client(client)
+        for pub in pubs.values():
+            observer.destroy_publisher(pub)
+        assert node.stop() == 0
