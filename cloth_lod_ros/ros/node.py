@@ -42,12 +42,10 @@ import collections
 import logging
 import time
 
-import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
@@ -60,28 +58,16 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 from ..bag.recorder import SessionRecorder
-from ..bag.rosbag import COMPRESSIONS, BagError
+from ..bag.rosbag import BagError
 from ..messages.frames import FrameBuilder, standard_diagnostics
 from ..sim import ClothSim, SimulationError
-from ..sim.cloth import live_update
 from ..sim.config import SceneError, load_scene, scene_to_dict
+from . import parameters
 from .inputs import POSE_REJECTIONS, InputQueue, PoseLimits, health, judge_pose
+from .parameters import LIVE
 
 __all__ = ["ClothLodNode", "main"]
 
-# Live-tunable scene parameters: name -> (scene path, unit, low, high).
-LIVE = {
-    "lod.refine_threshold": ("lod.refine_threshold", "m", 1e-6, 1.0),
-    "lod.coarsen_threshold": ("lod.coarsen_threshold", "m", 1e-7, 1.0),
-    "lod.min_lifetime": ("lod.min_lifetime", "s", 0.0, 60.0),
-    "lod.max_hinge_rate": ("lod.max_hinge_rate", "rad/s", 1e-6, 1e3),
-    "lod.max_bend_force": ("lod.max_bend_force", "N", 1e-9, 1e3),
-    "material.stretch_stiffness": ("material.stretch_stiffness", "N/m", 0.0, 1e7),
-    "material.shear_stiffness": ("material.shear_stiffness", "N/m", 0.0, 1e7),
-    "material.bend_stiffness": ("material.bend_stiffness", "N*m", 0.0, 10.0),
-    "material.air_drag": ("material.air_drag", "1/s", 0.0, 100.0),
-}
-COLOUR_BY = ("level", "shading")
 MAX_STEPS_PER_TICK = 3          # catch-up limit of the real-time pacing
 DIAGNOSTICS_PERIOD = 1.0        # s, /diagnostics as diagnostic_updater publishes it
 RATE_WINDOW = 2.0               # s, window of the measured real-time factor and publish rate
@@ -90,23 +76,14 @@ RATE_WINDOW = 2.0               # s, window of the measured real-time factor and
 SERVICE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 
-def _float_descriptor(text, unit, low, high, read_only=False):
-    return ParameterDescriptor(
-        description=f"{text} [{unit}]" if unit else text, read_only=read_only,
-        floating_point_range=[FloatingPointRange(from_value=float(low), to_value=float(high))])
-
-
 class ClothLodNode(Node):
     """Runs a cloth scene, driven by grasp poses, publishing its mesh and statistics."""
 
     def __init__(self, **kwargs):
         super().__init__("cloth_lod_node", **kwargs)
-        self._declare_parameters()
+        parameters.declare_parameters(self)
         scene = load_scene(self.get_parameter("scene").value)   # SceneError: main() exits 2
-        for name, (path, unit, low, high) in LIVE.items():
-            section, key = path.split(".")
-            value = float(getattr(getattr(scene, section), key))
-            self.declare_parameter(name, value, _float_descriptor(name, unit, low, high))
+        parameters.declare_scene_parameters(self, scene)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._parameters_set)
 
@@ -167,49 +144,6 @@ class ClothLodNode(Node):
         self._log_start()
 
     # -- set-up ----------------------------------------------------------------
-    def _declare_parameters(self) -> None:
-        string = ParameterDescriptor
-        self.declare_parameter("scene", "hang_two_corners", string(
-            description="built-in scene name or path to a scene YAML file", read_only=True))
-        self.declare_parameter("frame_id", "world", string(
-            description="frame of the cloth; grasp poses must use it", read_only=True))
-        self.declare_parameter("time_step", 0.0, _float_descriptor(
-            "simulation time step, 0 = the scene's", "s", 0.0, 1.0, read_only=True))
-        self.declare_parameter("publish_rate", 30.0, _float_descriptor(
-            "rate of cloth/markers, cloth/points, cloth/grid and cloth/lod_stats; "
-            "at most one frame per step tick (1/time_step in real time)", "Hz", 0.1, 1000.0))
-        self.declare_parameter("realtime", True, string(
-            description="pace steps to the clock (false: step as fast as possible)"))
-        self.declare_parameter("paused", False, string(
-            description="pause (true) or run (false) the simulation; cloth/pause does the same"))
-        self.declare_parameter("grid_resolution", 21, ParameterDescriptor(
-            description="points per side of the cloth/grid resampling", read_only=True,
-            integer_range=[IntegerRange(from_value=2, to_value=257, step=1)]))
-        self.declare_parameter("stale_pose_timeout", 1.0, _float_descriptor(
-            "reject grasp poses stamped more than this before or after the node's clock, "
-            "0 = never", "s", 0.0, 3600.0))
-        self.declare_parameter("workspace_min", [-10.0, -10.0, -10.0], string(
-            description="[m] x, y, z lower corner of the box grasp targets must lie in"))
-        self.declare_parameter("workspace_max", [10.0, 10.0, 10.0], string(
-            description="[m] x, y, z upper corner of the box grasp targets must lie in"))
-        self.declare_parameter("strain_warn", 0.3, _float_descriptor(
-            "WARN above this strain | |w| - 1 | (ERROR above 4x)", "", 1e-3, 100.0))
-        self.declare_parameter("speed_warn", 20.0, _float_descriptor(
-            "WARN above this particle speed (ERROR above 4x)", "m/s", 1e-3, 1e4))
-        self.declare_parameter("colour_by", "level", string(
-            description="surface colours: 'level' or 'shading'"))
-        self.declare_parameter("wireframe", True, string(description="publish the wireframe"))
-        self.declare_parameter("publish_clock", False, string(
-            description="publish /clock from the simulated time and stamp outputs with it",
-            read_only=True))
-        self.declare_parameter("record", False, string(
-            description="record the session to a bag from the start", read_only=True))
-        self.declare_parameter("record_path", "", string(
-            description="bag directory; '' = bags/cloth_lod_<date>_<time>; must not exist",
-            read_only=True))
-        self.declare_parameter("record_compression", "zstd", string(
-            description=f"MCAP chunk compression: {', '.join(COMPRESSIONS)}", read_only=True))
-
     def _service(self, srv_type, name: str, callback) -> None:
         def answer(request, response):
             try:
@@ -262,34 +196,13 @@ class ClothLodNode(Node):
     # -- parameters (any thread; never the simulator) --------------------------
     def _validate_parameters(self, params) -> SetParametersResult:
         """Validate a set of changes as a whole; refuse with the reason, keep old values."""
-        changes = {}
-        for p in params:
-            if p.name in LIVE:
-                changes[LIVE[p.name][0]] = p.value
-            elif p.name == "colour_by" and p.value not in COLOUR_BY:
-                return SetParametersResult(successful=False, reason=(
-                    f"colour_by must be one of {', '.join(COLOUR_BY)}, got {p.value!r}"))
-            elif p.name in ("workspace_min", "workspace_max"):
-                values = np.asarray(p.value, dtype=float) if p.value is not None else None
-                if values is None or values.shape != (3,) or not np.all(np.isfinite(values)):
-                    return SetParametersResult(successful=False, reason=(
-                        f"{p.name} must be 3 finite numbers [m], got {p.value!r}"))
-        names = {p.name: p.value for p in params}
-        low = np.asarray(names.get("workspace_min", self.get_parameter("workspace_min").value),
-                         dtype=float)
-        high = np.asarray(names.get("workspace_max", self.get_parameter("workspace_max").value),
-                          dtype=float)
-        if np.any(low >= high):
-            return SetParametersResult(successful=False,
-                                       reason="workspace_min must be below workspace_max")
-        if changes:
-            try:
-                self._param_scene = live_update(self._param_scene, changes)
-            except SceneError as exc:
-                return SetParametersResult(successful=False, reason=str(exc))
+        result, scene, changes = parameters.validate(
+            params, lambda name: self.get_parameter(name).value, self._param_scene)
+        if result.successful and changes:
             if not self.queue.put_command("parameters", changes):
                 return SetParametersResult(successful=False, reason=self._busy())
-        return SetParametersResult(successful=True)
+            self._param_scene = scene
+        return result
 
     def _parameters_set(self, params) -> None:
         """After a change took effect: refresh what the input threads read, and

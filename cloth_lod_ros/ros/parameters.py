@@ -1,0 +1,132 @@
+"""The node's parameters: declarations, ranges and validation (design §6).
+
+Validation never touches the simulator: scene parameters are checked as a whole
+scene (:func:`~cloth_lod_ros.sim.cloth.live_update`) against the scene as it will
+be once the changes already accepted are applied, so a change is answered at
+once and applied by the stepping thread before its next step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+
+from ..bag.rosbag import COMPRESSIONS
+from ..sim.cloth import live_update
+from ..sim.config import SceneConfig, SceneError
+
+__all__ = ["LIVE", "COLOUR_BY", "declare_parameters", "declare_scene_parameters",
+           "validate"]
+
+# Live-tunable scene parameters: name -> (scene path, unit, low, high).
+LIVE = {
+    "lod.refine_threshold": ("lod.refine_threshold", "m", 1e-6, 1.0),
+    "lod.coarsen_threshold": ("lod.coarsen_threshold", "m", 1e-7, 1.0),
+    "lod.min_lifetime": ("lod.min_lifetime", "s", 0.0, 60.0),
+    "lod.max_hinge_rate": ("lod.max_hinge_rate", "rad/s", 1e-6, 1e3),
+    "lod.max_bend_force": ("lod.max_bend_force", "N", 1e-9, 1e3),
+    "material.stretch_stiffness": ("material.stretch_stiffness", "N/m", 0.0, 1e7),
+    "material.shear_stiffness": ("material.shear_stiffness", "N/m", 0.0, 1e7),
+    "material.bend_stiffness": ("material.bend_stiffness", "N*m", 0.0, 10.0),
+    "material.air_drag": ("material.air_drag", "1/s", 0.0, 100.0),
+}
+COLOUR_BY = ("level", "shading")
+
+
+def _float_descriptor(text, unit, low, high, read_only=False):
+    return ParameterDescriptor(
+        description=f"{text} [{unit}]" if unit else text, read_only=read_only,
+        floating_point_range=[FloatingPointRange(from_value=float(low), to_value=float(high))])
+
+
+def declare_parameters(node) -> None:
+    """Declare the node's parameters (all but the live scene ones, which take
+    their defaults from the scene: :func:`declare_scene_parameters`)."""
+    string = ParameterDescriptor
+    node.declare_parameter("scene", "hang_two_corners", string(
+        description="built-in scene name or path to a scene YAML file", read_only=True))
+    node.declare_parameter("frame_id", "world", string(
+        description="frame of the cloth; grasp poses must use it", read_only=True))
+    node.declare_parameter("time_step", 0.0, _float_descriptor(
+        "simulation time step, 0 = the scene's", "s", 0.0, 1.0, read_only=True))
+    node.declare_parameter("publish_rate", 30.0, _float_descriptor(
+        "rate of cloth/markers, cloth/points, cloth/grid and cloth/lod_stats; "
+        "at most one frame per step tick (1/time_step in real time)", "Hz", 0.1, 1000.0))
+    node.declare_parameter("realtime", True, string(
+        description="pace steps to the clock (false: step as fast as possible)"))
+    node.declare_parameter("paused", False, string(
+        description="pause (true) or run (false) the simulation; cloth/pause does the same"))
+    node.declare_parameter("grid_resolution", 21, ParameterDescriptor(
+        description="points per side of the cloth/grid resampling", read_only=True,
+        integer_range=[IntegerRange(from_value=2, to_value=257, step=1)]))
+    node.declare_parameter("stale_pose_timeout", 1.0, _float_descriptor(
+        "reject grasp poses stamped more than this before or after the node's clock, "
+        "0 = never", "s", 0.0, 3600.0))
+    node.declare_parameter("workspace_min", [-10.0, -10.0, -10.0], string(
+        description="[m] x, y, z lower corner of the box grasp targets must lie in"))
+    node.declare_parameter("workspace_max", [10.0, 10.0, 10.0], string(
+        description="[m] x, y, z upper corner of the box grasp targets must lie in"))
+    node.declare_parameter("strain_warn", 0.3, _float_descriptor(
+        "WARN above this strain | |w| - 1 | (ERROR above 4x)", "", 1e-3, 100.0))
+    node.declare_parameter("speed_warn", 20.0, _float_descriptor(
+        "WARN above this particle speed (ERROR above 4x)", "m/s", 1e-3, 1e4))
+    node.declare_parameter("colour_by", "level", string(
+        description="surface colours: 'level' or 'shading'"))
+    node.declare_parameter("wireframe", True, string(description="publish the wireframe"))
+    node.declare_parameter("publish_clock", False, string(
+        description="publish /clock from the simulated time and stamp outputs with it",
+        read_only=True))
+    node.declare_parameter("record", False, string(
+        description="record the session to a bag from the start", read_only=True))
+    node.declare_parameter("record_path", "", string(
+        description="bag directory; '' = bags/cloth_lod_<date>_<time>; must not exist",
+        read_only=True))
+    node.declare_parameter("record_compression", "zstd", string(
+        description=f"MCAP chunk compression: {', '.join(COMPRESSIONS)}", read_only=True))
+
+
+def declare_scene_parameters(node, scene: SceneConfig) -> None:
+    """Declare the live scene parameters with the scene's values as defaults."""
+    for name, (path, unit, low, high) in LIVE.items():
+        section, key = path.split(".")
+        value = float(getattr(getattr(scene, section), key))
+        node.declare_parameter(name, value, _float_descriptor(name, unit, low, high))
+
+
+def validate(params, current, scene: SceneConfig):
+    """Check a set of parameter changes as a whole.
+
+    Args:
+        params: the rclpy ``Parameter`` objects being set.
+        current: ``name -> value`` of the node's parameters now.
+        scene: the scene the live scene changes apply to.
+
+    Returns:
+        ``(SetParametersResult, scene after the changes, {scene path: value})``;
+        on refusal the scene is the one given and the changes are empty.
+    """
+    changes = {}
+    for p in params:
+        if p.name in LIVE:
+            changes[LIVE[p.name][0]] = p.value
+        elif p.name == "colour_by" and p.value not in COLOUR_BY:
+            return SetParametersResult(successful=False, reason=(
+                f"colour_by must be one of {', '.join(COLOUR_BY)}, got {p.value!r}")), scene, {}
+        elif p.name in ("workspace_min", "workspace_max"):
+            values = np.asarray(p.value, dtype=float) if p.value is not None else None
+            if values is None or values.shape != (3,) or not np.all(np.isfinite(values)):
+                return SetParametersResult(successful=False, reason=(
+                    f"{p.name} must be 3 finite numbers [m], got {p.value!r}")), scene, {}
+    names = {p.name: p.value for p in params}
+    low = np.asarray(names.get("workspace_min", current("workspace_min")), dtype=float)
+    high = np.asarray(names.get("workspace_max", current("workspace_max")), dtype=float)
+    if np.any(low >= high):
+        return SetParametersResult(successful=False,
+                                   reason="workspace_min must be below workspace_max"), scene, {}
+    if changes:
+        try:
+            scene = live_update(scene, changes)
+        except SceneError as exc:
+            return SetParametersResult(successful=False, reason=str(exc)), scene, {}
+    return SetParametersResult(successful=True), scene, changes
