@@ -310,6 +310,14 @@ def pose_script(body: str) -> subprocess.Popen:
     """) + textwrap.dedent(body))
 
 
+def light_scene(tmp_path):
+    """The test scene at level 3: it keeps real time with room to spare on a loaded
+    machine, so rates and clocks are the node's, not the machine's."""
+    scene = tmp_path / "light.yaml"
+    scene.write_text(SCENE.replace("level: 5", "level: 3"))
+    return scene
+
+
 def level(node):
     return node.stats[-1].status[0].level[0]
 
@@ -409,9 +417,7 @@ def test_run_time_parameters_do_what_they_say(running):
 def test_publish_rate_follows_the_parameter(observer, tmp_path):
     """Measured on the node's own stamps, so the observer's delays do not count
     (a light scene, so the simulation keeps real time on a loaded machine)."""
-    scene = tmp_path / "light.yaml"
-    scene.write_text(SCENE.replace("level: 5", "level: 3"))
-    node = Running(observer, scene, "publish_rate:=30.0")
+    node = Running(observer, light_scene(tmp_path), "publish_rate:=30.0")
     # Only lod_stats: decoding big MarkerArrays in Python would slow the observer.
     for sub in node.subs[:1] + node.subs[2:]:
         node.observer.destroy_subscription(sub)
@@ -599,3 +605,48 @@ def test_fuzzed_poses_parameters_and_service_calls_never_stop_the_node(observer,
         for pub in pubs.values():
             observer.destroy_publisher(pub)
         assert node.stop() == 0
+
+
+def test_the_physics_follows_an_external_clock_at_half_speed(observer, tmp_path):
+    """use_sim_time with /clock from another node running at half speed: the
+    simulated time advances with /clock, not with the wall clock."""
+    from rosgraph_msgs.msg import Clock
+    clock_pub = observer.create_publisher(Clock, "/clock", 10)
+    wall_start = time.monotonic()
+
+    def tick():
+        msg = Clock()
+        ns = int(0.5 * (time.monotonic() - wall_start) * 1e9) + 1_000_000_000
+        msg.clock.sec, msg.clock.nanosec = ns // 10**9, ns % 10**9
+        clock_pub.publish(msg)
+        return False
+    timer = observer.create_timer(0.01, tick)
+    node = Running(observer, light_scene(tmp_path), "use_sim_time:=true")
+    try:
+        assert node.spin_until(lambda: float(node.stat("sim_time_s")) > 0.2, 15.0)
+        sim0, wall0 = float(node.stat("sim_time_s")), time.monotonic()
+        node.spin_for(3.0)
+        sim1, wall1 = float(node.stat("sim_time_s")), time.monotonic()
+        ratio = (sim1 - sim0) / (wall1 - wall0)
+        assert 0.35 < ratio < 0.6, ratio          # half speed, not 1.0
+        stamp = node.stats[-1].header.stamp
+        assert stamp.sec < 1000                   # stamped with /clock, not the epoch
+    finally:
+        node.stop()
+        observer.destroy_timer(timer)
+        observer.destroy_publisher(clock_pub)
+
+
+def test_realtime_can_be_switched_off_while_running(observer, tmp_path):
+    node = Running(observer, light_scene(tmp_path), "publish_rate:=10.0")
+    node.spin_for(1.0)
+    result = node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
+                       SetParametersAtomically.Request(parameters=[Parameter(
+                           name="realtime", value=ParameterValue(
+                               type=ParameterType.PARAMETER_BOOL, bool_value=False))])).result
+    assert result.successful
+    sim0, wall0 = float(node.stat("sim_time_s")), time.monotonic()
+    node.spin_for(2.0)
+    sim1, wall1 = float(node.stat("sim_time_s")), time.monotonic()
+    node.stop()
+    assert (sim1 - sim0) / (wall1 - wall0) > 1.2           # as fast as it can: ahead of the wall
