@@ -10,6 +10,9 @@
     cloth-lod replay BAG [--json [F]]            re-simulate a recording and compare
     cloth-lod recover BAG [--out DIR]            rebuild an interrupted recording
     cloth-lod play BAG [--rate R] [--loop] [--topics T ...]   republish (a ROS node)
+    cloth-lod view BAG_OR_SCENE [--out anim.gif] [--fps 15] [--duration S] [--level L]
+                   [--set key=value ...] [--every N] [--size WxH] [--view 3d|top|side]
+                                                 animate a bag or a headless run (no ROS graph)
 
 ``run`` simulates headless and writes the final state (x, v, uv, mass,
 triangles, time) and the per-step statistics to an ``.npz`` file, and a PNG of
@@ -359,6 +362,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="only these topics (default: all recorded topics)")
     play.set_defaults(func=_cmd_play)
     for name, module_name, text in (
+            ("view", "view", "animate a recorded bag or a headless run of a scene (GIF)"),
             ("bench", "bench", "speed against error: uniform levels and adaptive thresholds"),
             ("stress", "stress", "hard-case stability suite: one table, pass/fail")):
         module = importlib.import_module(f"cloth_lod_ros.tools.{module_name}")
