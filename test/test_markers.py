@@ -15,7 +15,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from cloth_lod_ros.messages.markers import (DELETEALL, LINE_LIST, SPHERE_LIST, TRIANGLE_LIST,
                                    MarkerSpec, cloth_markers, level_colours,
                                    marker_array_message, serialize_marker_array,
-                                   serialize_point_cloud, unique_edges)
+                                   serialize_point_cloud, surface_levels, unique_edges)
 from cloth_lod_ros.sim.mesh48 import base_mesh, refine_uniform
 
 
@@ -102,6 +102,21 @@ def test_level_colours_span_the_scale():
     c = level_colours(np.arange(7), 6)
     assert c.shape == (7, 3) and np.all((c >= 0) & (c <= 1))
     assert np.all(np.diff(c.sum(axis=1)) > 0)        # dark to bright
+
+
+@pytest.mark.parametrize("max_level", [2, 6, 12])
+def test_surface_levels_decode_the_level_colours_of_a_recorded_surface(max_level):
+    """``cloth-lod view`` reads the levels back from a recorded surface marker:
+    the float32 colours on the wire, divided by the shading, give them exactly."""
+    mesh, x = small_cloth(2, seed=max_level)
+    levels = np.random.default_rng(max_level).integers(0, max_level + 1, mesh.triangle_count)
+    msg = marker_array_message(cloth_markers(x, mesh.triangles, levels, max_level, "world"))
+    surface = msg.markers[0]
+    corners = np.array([[p.x, p.y, p.z] for p in surface.points]).reshape(-1, 3, 3)
+    colours = np.array([[c.r, c.g, c.b] for c in surface.colors[::3]])
+    np.testing.assert_array_equal(surface_levels(corners, colours, max_level), levels)
+    shaded = cloth_markers(x, mesh.triangles, levels, max_level, "world", colour_by="shading")
+    assert surface_levels(corners, shaded[0].colors[::3], max_level) is None
 
 
 @pytest.mark.parametrize("height", [1, 4])

@@ -23,6 +23,7 @@ import numpy as np
 
 __all__ = ["MarkerSpec", "serialize_marker_array", "marker_array_message",
            "cloth_markers", "obstacle_markers", "level_colours", "unique_edges",
+           "surface_shade", "surface_levels",
            "serialize_point_cloud", "TRIANGLE_LIST", "LINE_LIST", "SPHERE_LIST",
            "CUBE", "SPHERE", "CYLINDER", "ADD", "DELETEALL"]
 
@@ -159,6 +160,44 @@ def level_colours(levels: np.ndarray, max_level: int) -> np.ndarray:
     return (1 - frac) * _VIRIDIS[lo] + frac * _VIRIDIS[hi]
 
 
+_LIGHT = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+
+
+def surface_shade(corners: np.ndarray) -> np.ndarray:
+    """``(t,)`` brightness in [0.45, 1] of triangles ``corners`` ``(t, 3, 3)``: the
+    face normal against a fixed light (the ``surface`` marker's shading)."""
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+    return 0.45 + 0.55 * np.abs(normals @ _LIGHT)
+
+
+def surface_levels(corners: np.ndarray, colours: np.ndarray, max_level: int,
+                   tolerance: float = 1e-3) -> np.ndarray | None:
+    """The bisection levels a ``surface`` marker coloured by level encodes.
+
+    The inverse of :func:`cloth_markers` with ``colour_by="level"``: each face's
+    colour divided by its shade (:func:`surface_shade` of its corners) is one of
+    the ``level_colours`` of 0..``max_level``.
+
+    Args:
+        corners: ``(t, 3, 3)`` triangle corners, m (the marker's points).
+        colours: ``(t, 3)`` RGB of each face (the colour of its first corner).
+
+    Returns:
+        ``(t,)`` levels, or None when some face matches no level colour within
+        ``tolerance`` (the marker was coloured by shading, or by another palette).
+    """
+    if not len(corners):
+        return np.zeros(0, dtype=np.int64)
+    base = np.asarray(colours, float)[:, :3] / surface_shade(np.asarray(corners, float))[:, None]
+    palette = level_colours(np.arange(max_level + 1), max_level)
+    distance = np.linalg.norm(base[:, None, :] - palette[None, :, :], axis=2)
+    levels = distance.argmin(axis=1)
+    if distance[np.arange(len(levels)), levels].max() > tolerance:
+        return None
+    return levels
+
+
 def unique_edges(triangles: np.ndarray, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each edge once, ``(e, 2)``, with the finest level of its triangles ``(e,)``.
 
@@ -197,10 +236,7 @@ def cloth_markers(positions: np.ndarray, triangles: np.ndarray, levels: np.ndarr
     x = np.asarray(positions, float)
     tri = np.asarray(triangles)
     corners = x[tri]                                            # (t, 3, 3)
-    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-    light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
-    shade = 0.45 + 0.55 * np.abs(normals @ light)
+    shade = surface_shade(corners)
     if colour_by == "level":
         base = level_colours(levels, max_level)
     else:

@@ -10,6 +10,9 @@
     cloth-lod replay BAG [--json [F]]            re-simulate a recording and compare
     cloth-lod recover BAG [--out DIR]            rebuild an interrupted recording
     cloth-lod play BAG [--rate R] [--loop] [--topics T ...]   republish (a ROS node)
+    cloth-lod view BAG_OR_SCENE [--out anim.gif] [--fps 15] [--duration S] [--level L]
+                   [--set key=value ...] [--every N] [--size WxH] [--view 3d|top|side]
+                                                 animate a bag or a headless run (no ROS graph)
 
 ``run`` simulates headless and writes the final state (x, v, uv, mass,
 triangles, time) and the per-step statistics to an ``.npz`` file, and a PNG of
@@ -83,8 +86,9 @@ def _summary(sim: ClothSim, wall: float) -> str:
 
 
 def _frame(sim: ClothSim, prefix: str = ""):
-    return (sim.positions.copy(), sim.triangles.copy(), sim.triangle_levels.copy(),
-            f"{prefix}t = {sim.time:.2f} s, {sim.mesh.triangle_count} triangles")
+    from .plotting import frame_from_sim
+    return frame_from_sim(sim, f"{prefix}t = {sim.time:.2f} s, "
+                               f"{sim.mesh.triangle_count} triangles")
 
 
 def _lod_line(sim: ClothSim) -> str:
@@ -152,16 +156,20 @@ def _cmd_run(args) -> int:
     if not args.no_png:
         from .plotting import render_frames
         frames.append(_frame(sim, f"{scene.name}, "))
-        render_frames(png, frames, np.array([p.vertex for p in sim.pins], dtype=np.int64),
-                      max_level=sim.max_level if sim.hierarchy is not None else None)
+        render_frames(png, frames, max_level=sim.max_level if sim.hierarchy is not None else None,
+                      obstacles=scene.obstacles)
         print(f"  wrote {png}")
         if sim.hierarchy is not None:
             from .plotting import render_levels, render_lod_history
             levels_png = png.with_name(png.stem + "_levels.png")
+            closed = [g for g in sim.grasps if g.closed]
             render_levels(levels_png, sim.positions, sim.triangles, sim.rest_uv,
                           sim.triangle_levels, sim.max_level,
                           title=f"{scene.name}: final mesh at t = {sim.time:.2f} s, "
-                                f"{sim.mesh.triangle_count} triangles")
+                                f"{sim.mesh.triangle_count} triangles",
+                          obstacles=scene.obstacles,
+                          grasps=np.array([g.position for g in closed]).reshape(-1, 3),
+                          grasp_uv=np.array([g.uv for g in closed]).reshape(-1, 2))
             history_png = png.with_name(png.stem + "_lod.png")
             render_lod_history(history_png, sim.stats,
                                title=f"{scene.name}: adaptive mesh over time")
@@ -354,6 +362,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="only these topics (default: all recorded topics)")
     play.set_defaults(func=_cmd_play)
     for name, module_name, text in (
+            ("view", "view", "animate a recorded bag or a headless run of a scene (GIF)"),
             ("bench", "bench", "speed against error: uniform levels and adaptive thresholds"),
             ("stress", "stress", "hard-case stability suite: one table, pass/fail")):
         module = importlib.import_module(f"cloth_lod_ros.tools.{module_name}")
