@@ -30,8 +30,10 @@ setup(
         (f"share/{PACKAGE}/launch", glob("config/*.launch.py")),
     ],
     python_requires=">=3.10",
+    # qdldl: the sparse LDL^T behind solver.method direct/auto (wheels for
+    # x86_64 and aarch64; without it auto falls back to PCG).
     install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6",
-                      "matplotlib>=3.6"],
+                      "matplotlib>=3.6", "qdldl>=0.1.7"],
     extras_require={
         "ros": ROS_WHEELS + BAG,
         "test": ROS_WHEELS + BAG + BAG_READERS + ["pytest>=7", "hypothesis>=6"],

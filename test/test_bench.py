@@ -110,7 +110,8 @@ def test_rows_have_non_negative_errors_and_finite_costs(tiny):
             assert math.isfinite(row[key]) and row[key] > 0.0, (row["config"], key)
         assert row["wall_per_sim_s_min"] <= row["wall_per_sim_s_median"] \
             <= row["wall_per_sim_s_max"]
-        assert row["vertex_steps"] > 0 and row["cg_iterations"] > 0
+        assert row["vertex_steps"] > 0 and row["cg_iterations"] >= 0
+        assert row["solves_per_step"] >= 1 and row["solver"]
         assert 0.0 <= row["lod_share_median"] < 1.0
     rows = by_config(data["rows"])
     assert rows["uniform_L1"]["rms_frac_motion"] > 0.0      # a coarser mesh differs

@@ -62,7 +62,7 @@ def test_builtin_scene_loads_with_documented_values():
     assert [p.uv for p in scene.pins] == [(0.0, 1.0), (1.0, 1.0)]
     assert scene.simulation.time_step == pytest.approx(1 / 60)
     assert scene.simulation.gravity == (0.0, 0.0, -9.81)
-    assert scene.solver.method == "pcg"
+    assert scene.solver.method == "auto"
 
 
 def test_builtin_scene_by_path_equals_by_name():
@@ -79,7 +79,7 @@ def test_defaults_fill_optional_fields(tmp_path):
     assert scene.cloth.level == 0
     assert scene.pins == ()
     assert scene.material.density > 0
-    assert scene.solver.method == "pcg"
+    assert scene.solver.method == "auto"
 
 
 def test_pins_get_default_names_and_axes_are_normalised(tmp_path):
@@ -333,7 +333,7 @@ def scenes(draw):
                     {"name": "far", "uv": [data["cloth"]["width"], data["cloth"]["height"]],
                      "release_time": draw(st.one_of(st.none(),
                                                     st.floats(0, 10)))}]
-    data["solver"]["method"] = draw(st.sampled_from(["pcg", "direct"]))
+    data["solver"]["method"] = draw(st.sampled_from(["auto", "pcg", "multigrid", "direct", "superlu"]))
     return data
 
 

@@ -95,8 +95,9 @@ class ClothSim:
         base = base_mesh(cloth.width, cloth.height, *cloth.base_blocks)
         origin = np.asarray(cloth.origin, dtype=float)
         axes = np.array([cloth.u_axis, cloth.v_axis], dtype=float)
-        self.solver = ImplicitEulerSolver(scene.solver, scene.material,
-                                          scene.simulation.gravity)
+        self.solver = ImplicitEulerSolver(
+            scene.solver, scene.material, scene.simulation.gravity,
+            geometry=(cloth.width, cloth.height, cloth.width / cloth.base_blocks[0]))
         self.time_step = scene.simulation.time_step
         self.stats: list[StepStats] = []
         self.keep_stats = keep_stats
@@ -121,6 +122,7 @@ class ClothSim:
             self.masses = lumped_masses(self.mesh.uv, self.mesh.triangles,
                                         scene.material.density)
             self.vertex_ids = np.arange(self.mesh.vertex_count)
+            self.solver.reset_topology(self.elements, self.mesh.uv)
             positions = origin + self.mesh.uv @ axes
             self.state = ClothState(positions, np.zeros_like(positions), 0.0)
         self.pins = [self._make_pin(p) for p in scene.pins]
@@ -141,7 +143,7 @@ class ClothSim:
         self.masses = h.masses[self.vertex_ids]
         self.state = ClothState(h.x[self.vertex_ids].copy(), h.v[self.vertex_ids].copy(),
                                 self.state.time)
-        self.solver.reset_topology(self.elements)
+        self.solver.reset_topology(self.elements, self.mesh.uv)
         self._locator = None
         for pin in getattr(self, "pins", ()):
             pin.vertex = int(np.searchsorted(self.vertex_ids, pin.node))
@@ -363,7 +365,8 @@ class ClothSim:
             gravity_energy=float(-np.sum(self.masses * (x @ self.solver.gravity))),
             stretch_energy=elastic["stretch"], shear_energy=elastic["shear"],
             bend_energy=elastic["bend"], max_strain=elastic["max_strain"],
-            max_speed=float(np.sqrt(np.max(np.sum(v * v, axis=1)))), substeps=substeps)
+            max_speed=float(np.sqrt(np.max(np.sum(v * v, axis=1)))), substeps=substeps,
+            solves=report.solves, solver=self.solver.backend.name)
         self.stats.append(stats)
         self.step_count += 1
         if self.keep_stats is not None and len(self.stats) > 2 * self.keep_stats:

@@ -21,7 +21,8 @@ import numpy as np
 
 from .contact import find_contacts, penetrations
 from .forces import Elements, evaluate, stretch_lengths
-from .linear import Constraints, SparsePattern, filtered_pcg, solve_projected_direct
+from .linear import Constraints, SparsePattern
+from .solvers import make_solver
 from .state import ClothState
 
 __all__ = ["ImplicitEulerSolver", "SolveReport", "StepControl"]
@@ -39,6 +40,16 @@ class SolveReport:
     solve_ms: float
     contacts: int = 0
     released: int = 0
+    solves: int = 1
+
+    def add(self, other: "SolveReport") -> None:
+        """Fold in the work of another attempt at the same step (a rejected one,
+        a re-solve): iterations, solves and times add up."""
+        self.iterations += other.iterations
+        self.solves += other.solves
+        self.force_ms += other.force_ms
+        self.assembly_ms += other.assembly_ms
+        self.solve_ms += other.solve_ms
 
 
 class ImplicitEulerSolver:
@@ -48,22 +59,40 @@ class ImplicitEulerSolver:
     topology is unchanged; call :meth:`reset_topology` after it changes.
     """
 
-    def __init__(self, solver_config, material, gravity):
+    def __init__(self, solver_config, material, gravity, geometry=None):
+        """Args:
+            solver_config: the scene's ``solver`` section (method, tolerance, ...).
+            material: the scene's material.  gravity: ``(3,)`` m/s².
+            geometry: ``(width, height, block)`` of the cloth in m, for the
+                multigrid backend's lattices.
+        """
         self.config = solver_config
         self.material = material
         self.gravity = np.asarray(gravity, dtype=float)
+        self.backend = make_solver(solver_config.method, solver_config.tolerance,
+                                   solver_config.max_iterations, geometry)
         self._pattern: SparsePattern | None = None
+        self._uv: np.ndarray | None = None
         self._previous_dv: np.ndarray | None = None
         self._prepared = None
+        self._solves = 0
 
-    def reset_topology(self, elements: Elements | None = None) -> None:
-        """Forget per-topology caches; with ``elements``, build the new pattern now."""
+    def reset_topology(self, elements: Elements | None = None,
+                       uv: np.ndarray | None = None) -> None:
+        """Forget per-topology caches; with ``elements`` (and the particles' rest
+        ``uv`` ``(n, 2)`` m), build the new pattern and set up the backend now."""
         self._pattern = None
         self._previous_dv = None
         self._prepared = None
+        if uv is not None:
+            self._uv = uv
         if elements is not None:
-            self._pattern = SparsePattern(elements.vertex_count,
-                                          [elements.triangles, elements.hinge_vertices])
+            self._new_pattern(elements)
+
+    def _new_pattern(self, elements: Elements) -> None:
+        self._pattern = SparsePattern(elements.vertex_count,
+                                      [elements.triangles, elements.hinge_vertices])
+        self.backend.reset_topology(self._pattern, self._uv)
 
     def prepare(self, elements: Elements, state: ClothState, h: float):
         """Forces, energies and system blocks at ``state`` (cached).
@@ -111,8 +140,8 @@ class ImplicitEulerSolver:
         mat = self.material
         x, v = state.positions, state.velocities
         if self._pattern is None:
-            self._pattern = SparsePattern(elements.vertex_count,
-                                          [elements.triangles, elements.hinge_vertices])
+            self._new_pattern(elements)
+        solves_before = self._solves
         ev, evaluate_ms = self.prepare(elements, state, h)
         t0 = _time.perf_counter() - 1e-3 * evaluate_ms     # force_ms includes the evaluation
         drag = mat.air_drag
@@ -151,7 +180,8 @@ class ImplicitEulerSolver:
         self._keep_warm_start(result.dv)
         report = SolveReport(result.iterations, result.residual, result.converged,
                              1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2),
-                             len(contacts) if contacts is not None else 0, released)
+                             len(contacts) if contacts is not None else 0, released,
+                             solves=self._solves - solves_before)
         return ClothState(new_x, new_v, state.time + h), report
 
     def _keep_warm_start(self, dv: np.ndarray) -> None:
@@ -160,11 +190,8 @@ class ImplicitEulerSolver:
         self._previous_dv = dv if np.all(np.isfinite(dv)) else None
 
     def _solve(self, matrix, rhs, constraints):
-        if self.config.method == "direct":
-            return solve_projected_direct(matrix, rhs, constraints)
-        return filtered_pcg(matrix, rhs, constraints, self._pattern.diagonal_blocks(matrix),
-                            guess=self._previous_dv, tolerance=self.config.tolerance,
-                            max_iterations=self.config.max_iterations)
+        self._solves += 1
+        return self.backend.solve(matrix, rhs, constraints, self._previous_dv)
 
     def _solve_with_contacts(self, matrix, rhs, pinned, contacts, masses, v, h, max_speed):
         """Solve with pins plus one-sided contacts and Coulomb friction (BW §5.3, §6).
@@ -292,12 +319,10 @@ class StepControl:
         middle, first, _, n_first = self.advance(elements, masses, state, halfway, 0.5 * h, depth + 1)
         end, second, contacts, n_second = self.advance(elements, masses, middle, held, 0.5 * h, depth + 1)
         # The report covers all the work of the step, the rejected attempt included.
-        second.iterations += first.iterations + report.iterations
+        second.add(first)
+        second.add(report)
         second.residual = max(first.residual, second.residual)
         second.converged = first.converged and second.converged
-        second.force_ms += first.force_ms + report.force_ms
-        second.assembly_ms += first.assembly_ms + report.assembly_ms
-        second.solve_ms += first.solve_ms + report.solve_ms
         second.released += first.released
         return end, second, contacts, n_first + n_second
 
@@ -335,7 +360,7 @@ class StepControl:
             new_state, retry = self.solver.step(
                 elements, masses, state, held, h, contacts,
                 self.contact.max_correction_speed)
-            retry.iterations += report.iterations
+            retry.add(report)              # the first attempt's work counts too
             report = retry
         return new_state, report, contacts
 

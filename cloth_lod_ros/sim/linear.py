@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["SparsePattern", "Constraints", "SolveResult", "filtered_pcg",
+__all__ = ["SparsePattern", "Constraints", "SolveResult", "filtered_pcg", "project_system",
            "solve_projected_direct"]
 
 
@@ -77,6 +77,13 @@ class SparsePattern:
                            minlength=9 * self.block_count).reshape(-1, 3, 3)
         data[self.diagonal_block] += diagonal[:, None, None] * np.eye(3)
         return sp.bsr_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+    @property
+    def block_rows(self) -> np.ndarray:
+        """``(blocks,)`` the vertex row of every stored block (cached)."""
+        if getattr(self, "_block_rows", None) is None:
+            self._block_rows = np.repeat(np.arange(self.vertex_count), np.diff(self.indptr))
+        return self._block_rows
 
     def diagonal_blocks(self, matrix: sp.bsr_matrix) -> np.ndarray:
         """The ``(n, 3, 3)`` vertex diagonal blocks of an assembled matrix."""
@@ -139,7 +146,8 @@ class SolveResult:
 
 def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
                  block_diagonal: np.ndarray, guess: np.ndarray | None = None,
-                 tolerance: float = 1e-4, max_iterations: int = 2000) -> SolveResult:
+                 tolerance: float = 1e-4, max_iterations: int = 2000,
+                 preconditioner=None, filtered_matrix=None) -> SolveResult:
     """Modified PCG of BW §5.3 with block-Jacobi preconditioning.
 
     Iterates only in the filtered subspace: with ``c = S c`` for every search
@@ -158,24 +166,42 @@ def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
         constraints: filters and prescribed changes.
         block_diagonal: ``(n, 3, 3)`` diagonal blocks of ``matrix``.
         guess: ``(n, 3)`` warm start for the free directions (defaults to 0).
+        preconditioner: instead of block-Jacobi, a callable ``r (3n,) -> z (3n,)``
+            approximating the inverse of the filtered system (a multigrid
+            V-cycle); it is applied as ``S M⁻¹ S``.
+        filtered_matrix: ``S A S`` if the caller has it (any matrix equal to it
+            on the free subspace, e.g. :func:`project_system`'s).
     """
     n = rhs.shape[0]
-    inverse_blocks = np.linalg.inv(block_diagonal)
+    projectors = None
     if len(constraints.indices):
         projectors = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         projectors[constraints.indices] = constraints.projectors
-        inverse_blocks = projectors @ inverse_blocks @ projectors
+    if filtered_matrix is not None:
+        filtered = filtered_matrix.tocsr()
+    elif projectors is not None:
         filtered = _filter_matrix(matrix, projectors, constraints).tocsr()
     else:
         filtered = matrix.tocsr()         # CSR products are ~1.5x faster than BSR here
-    precond = _block_diag(inverse_blocks)
+    if preconditioner is None:
+        inverse_blocks = np.linalg.inv(block_diagonal)
+        if projectors is not None:
+            inverse_blocks = projectors @ inverse_blocks @ projectors
+        precond = _block_diag(inverse_blocks).__matmul__
+    elif projectors is None:
+        precond = preconditioner
+    else:
+        projection = _block_diag(projectors)
+
+        def precond(r):
+            return projection @ preconditioner(projection @ r)
 
     dv = constraints.start(np.zeros_like(rhs) if guess is None else guess).ravel()
     filtered_rhs = constraints.filter(rhs).ravel()
     rhs_norm = float(np.linalg.norm(filtered_rhs))
-    delta0 = float(filtered_rhs @ (precond @ filtered_rhs))
+    delta0 = float(filtered_rhs @ precond(filtered_rhs))
     residual = constraints.filter(rhs - (matrix @ dv).reshape(n, 3)).ravel()
-    direction = precond @ residual
+    direction = precond(residual)
     delta = float(residual @ direction)
     threshold = tolerance**2 * delta0
     plain_threshold = (tolerance * rhs_norm)**2
@@ -190,7 +216,7 @@ def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
         alpha = delta / curvature
         dv += alpha * direction
         residual -= alpha * q
-        s = precond @ residual
+        s = precond(residual)
         delta_old, delta = delta, float(residual @ s)
         direction = s + (delta / delta_old) * direction
         iterations += 1
@@ -209,6 +235,49 @@ def _filter_matrix(matrix, projectors: np.ndarray,
     rows = np.repeat(np.arange(len(projectors)), np.diff(bsr.indptr))
     data = np.matmul(np.matmul(projectors[rows], bsr.data), projectors[bsr.indices])
     return sp.bsr_matrix((data, bsr.indices, bsr.indptr), shape=bsr.shape)
+
+
+def project_system(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constraints,
+                   pattern: SparsePattern):
+    """The projected system ``Â y = b̂`` of a filtered step, on the topology's pattern.
+
+    ``Â = S A S + (I − S) D (I − S)`` (D: the 3 × 3 diagonal blocks of A) is SPD,
+    equals ``S A S`` on the free subspace and has A's scale in the held
+    directions; ``b̂ = S (b − A z)``.  Then ``Δv = z + S y`` solves the filtered
+    problem.  Only blocks in a constrained row or column change, so ``Â`` keeps
+    A's sparsity pattern (explicit zeros included): a factorisation's symbolic
+    analysis stays valid for the whole topology.
+
+    Args:
+        matrix: A, BSR with 3 × 3 blocks on ``pattern``.
+        rhs: ``(n, 3)`` b.  constraints: S and z.
+
+    Returns:
+        ``(Â as BSR, b̂ (n, 3), z (n, 3))``.
+    """
+    n = rhs.shape[0]
+    z = constraints.start(np.zeros_like(rhs))
+    data = matrix.data.copy()
+    b = rhs
+    if len(constraints.indices):
+        # The last entry of a particle listed twice wins, as in Constraints.filter.
+        last = len(constraints.indices) - 1 - np.unique(constraints.indices[::-1],
+                                                        return_index=True)[1]
+        indices, filters = constraints.indices[last], constraints.projectors[last]
+        held = np.zeros(n, dtype=bool)
+        held[indices] = True
+        projectors = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        projectors[indices] = filters
+        rows, cols = pattern.block_rows, matrix.indices
+        touched = np.flatnonzero(held[rows] | held[cols])
+        data[touched] = projectors[rows[touched]] @ matrix.data[touched] \
+            @ projectors[cols[touched]]
+        diagonal = pattern.diagonal_block[indices]
+        complement = np.eye(3) - filters
+        data[diagonal] += complement @ matrix.data[diagonal] @ complement
+        b = constraints.filter(rhs - (matrix @ z.ravel()).reshape(n, 3))
+    projected = sp.bsr_matrix((data, matrix.indices, matrix.indptr), shape=matrix.shape)
+    return projected, b, z
 
 
 def solve_projected_direct(matrix, rhs: np.ndarray,

@@ -41,9 +41,12 @@ class StepStats:
     ``step_ms`` includes ``lod_ms`` (criterion, operations and the refresh of
     compact arrays) and the physics (``force_ms + assembly_ms + solve_ms``).
     ``substeps`` is how many linearised solves the step was split into (1 unless
-    its stretch grew too fast, see :attr:`ClothSim.max_strain_growth`); with
+    its stretch grew too fast, see :class:`~cloth_lod_ros.sim.integrator.StepControl`); with
     more than one, the solver figures add up over all of them (the rejected
-    attempts included).
+    attempts included).  ``solves`` counts every linear solve of the step
+    (friction rounds, contact re-solves, substeps and rejected attempts), all
+    timed in ``solve_ms``; ``solver`` names the backend that ran
+    (:mod:`~cloth_lod_ros.sim.solvers`).
     """
 
     step_index: int
@@ -71,6 +74,8 @@ class StepStats:
     max_strain: float
     max_speed: float
     substeps: int = 1
+    solves: int = 1
+    solver: str = ""
 
     @property
     def total_energy(self) -> float:

@@ -189,6 +189,8 @@ def _row(cfg: dict, runs: list[dict], reference: np.ndarray, times: list[float],
         vertex_steps=c["vertex_steps"], triangle_steps=c["triangle_steps"],
         cg_iterations=c["cg_iterations"],
         cg_iterations_per_step=c["cg_iterations"] / c["steps"],
+        solves_per_step=c.get("solves", c["steps"]) / c["steps"],
+        solver="+".join(c.get("solvers", [])),
         unconverged_steps=c["unconverged_steps"],
         triangles_mean=c["triangles_mean"], triangles_max=c["triangles_max"],
         triangles_final=c["triangles_final"], splits=c["splits"], merges=c["merges"])

@@ -101,6 +101,8 @@ def _worker(spec: dict) -> dict:
         solve_ms=float(sum(s.solve_ms for s in st)),
         cg_iterations=int(sum(s.cg_iterations for s in st)),
         cg_iterations_max=int(max(s.cg_iterations for s in st)),
+        solves=int(sum(s.solves for s in st)),
+        solvers=sorted({s.solver for s in st}),
         unconverged_steps=int(sum(not s.converged for s in st)),
         vertex_steps=int(sum(s.vertex_count for s in st)),
         triangle_steps=int(tris.sum()),

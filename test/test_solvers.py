@@ -1,0 +1,195 @@
+"""Linear-solver backends: the same answer on the same systems, the properties
+each backend is for (a factorisation analysed once per topology, multigrid
+iterations that do not grow with the mesh), and honest accounting of solves."""
+
+import numpy as np
+import pytest
+from types import SimpleNamespace
+
+from cloth_lod_ros.sim import ClothSim
+from cloth_lod_ros.sim.forces import evaluate, precompute
+from cloth_lod_ros.sim.linear import Constraints, SparsePattern, filtered_pcg, project_system
+from cloth_lod_ros.sim.mesh48 import base_mesh, lumped_masses, refine_uniform
+from cloth_lod_ros.sim.multigrid import lattice_hierarchy
+from cloth_lod_ros.sim import solvers
+from cloth_lod_ros.sim.solvers import make_solver
+
+MATERIAL = SimpleNamespace(stretch_stiffness=2000.0, shear_stiffness=200.0, bend_stiffness=2e-4,
+                           stretch_damping=0.01, shear_damping=0.01, bend_damping=0.1)
+
+
+def system(level, seed=0, flat=False, h=1 / 60):
+    """A real step system of a cloth (deformed, or flat and unstrained: the
+    anisotropic case), its pattern and rest coordinates."""
+    mesh = refine_uniform(base_mesh(1.0, 1.0, 4, 4), level)
+    el = precompute(mesh)
+    rng = np.random.default_rng(seed)
+    x = np.column_stack([mesh.uv, np.zeros(mesh.vertex_count)])
+    v = np.zeros_like(x)
+    if not flat:
+        x += rng.normal(scale=0.01, size=x.shape)
+        v = rng.normal(scale=0.3, size=x.shape)
+    ev = evaluate(el, MATERIAL, x, v, h * h, h)
+    masses = lumped_masses(mesh.uv, mesh.triangles, 0.2)
+    pattern = SparsePattern(mesh.vertex_count, [el.triangles, el.hinge_vertices])
+    matrix = pattern.assemble([ev.triangle_blocks, ev.hinge_blocks], masses)
+    rhs = h * (ev.force + masses[:, None] * np.array([0, 0, -9.81]) + h * ev.stiffness_times_velocity)
+    return matrix, rhs, pattern, mesh
+
+
+def constraints_for(mesh, seed=1):
+    """Two held corners plus a row of plane contacts (normal z), prescribed."""
+    n = mesh.vertex_count
+    corners = np.flatnonzero(np.isclose(mesh.uv[:, 1], 1.0) & np.isin(mesh.uv[:, 0], [0.0, 1.0]))
+    row = np.flatnonzero(np.isclose(mesh.uv[:, 1], 0.0))
+    nz = np.array([0.0, 0.0, 1.0])
+    projectors = np.concatenate([np.zeros((len(corners), 3, 3)),
+                                 np.repeat((np.eye(3) - np.outer(nz, nz))[None], len(row), 0)])
+    rng = np.random.default_rng(seed)
+    prescribed = rng.normal(scale=0.01, size=(len(corners) + len(row), 3))
+    assert n > len(corners) + len(row)
+    return Constraints(np.concatenate([corners, row]), projectors, prescribed)
+
+
+def reference(matrix, rhs, pattern, constraints):
+    return filtered_pcg(matrix, rhs, constraints, pattern.diagonal_blocks(matrix),
+                        tolerance=1e-12, max_iterations=20000).dv
+
+
+@pytest.mark.parametrize("method", solvers.available_methods())
+@pytest.mark.parametrize("held", [False, True], ids=["free", "held"])
+def test_every_backend_solves_the_same_system(method, held):
+    matrix, rhs, pattern, mesh = system(4)
+    constraints = constraints_for(mesh) if held else Constraints.none()
+    exact = reference(matrix, rhs, pattern, constraints)
+    backend = make_solver(method, 1e-8, 5000, geometry=(1.0, 1.0, 0.25))
+    backend.reset_topology(pattern, mesh.uv)
+    result = backend.solve(matrix, rhs, constraints, None)
+    assert result.converged
+    assert np.abs(result.dv - exact).max() <= 1e-5 * np.abs(exact).max()
+    if held:                                  # held directions exactly as prescribed
+        c = constraints
+        held_part = result.dv[c.indices] - np.einsum("kab,kb->ka", c.projectors, result.dv[c.indices])
+        want = c.prescribed - np.einsum("kab,kb->ka", c.projectors, c.prescribed)
+        np.testing.assert_allclose(held_part, want, atol=1e-12)
+
+
+def test_the_projected_system_keeps_the_pattern_and_is_spd():
+    matrix, rhs, pattern, mesh = system(3)
+    projected, b, z = project_system(matrix, rhs, constraints_for(mesh), pattern)
+    np.testing.assert_array_equal(projected.indices, matrix.indices)
+    np.testing.assert_array_equal(projected.indptr, matrix.indptr)
+    dense = projected.toarray()
+    np.testing.assert_allclose(dense, dense.T, atol=1e-12 * np.abs(dense).max())
+    assert np.linalg.eigvalsh(dense).min() > 0
+
+
+def test_the_factorisation_is_analysed_once_per_topology(monkeypatch):
+    if "direct" not in solvers.available_methods():
+        pytest.skip("qdldl is a dependency of the package; this only runs without it")
+    analyses = []
+    real = solvers._qdldl.Solver
+
+    def counting(*args, **kwargs):
+        analyses.append(1)
+        return real(*args, **kwargs)
+    monkeypatch.setattr(solvers._qdldl, "Solver", counting)
+    matrix, rhs, pattern, mesh = system(3)
+    backend = make_solver("direct", 1e-8, 100)
+    backend.reset_topology(pattern, mesh.uv)
+    for k in range(4):                     # new numbers and new constraint sets each time
+        c = constraints_for(mesh, seed=k) if k % 2 else Constraints.none()
+        result = backend.solve(matrix * (1.0 + 0.1 * k), rhs, c, None)
+        np.testing.assert_allclose(result.dv, reference(matrix * (1.0 + 0.1 * k), rhs, pattern, c),
+                                   atol=1e-8)
+    assert len(analyses) == 1
+    backend.reset_topology(pattern, mesh.uv)
+    backend.solve(matrix, rhs, Constraints.none(), None)
+    assert len(analyses) == 2
+
+
+@pytest.mark.parametrize("flat", [False, True], ids=["deformed", "flat"])
+def test_multigrid_iterations_do_not_grow_with_the_mesh(flat):
+    """Block-Jacobi PCG needs about twice the iterations per halving of the edge;
+    the lattice V-cycle keeps them nearly constant (flat: the anisotropic start)."""
+    counts = {}
+    for level in (3, 5, 7):
+        matrix, rhs, pattern, mesh = system(level, flat=flat)
+        c = constraints_for(mesh)
+        backend = make_solver("multigrid", 1e-6, 2000, geometry=(1.0, 1.0, 0.25))
+        backend.reset_topology(pattern, mesh.uv)
+        mg = backend.solve(matrix, rhs, c, None)
+        jacobi = filtered_pcg(matrix, rhs, c, pattern.diagonal_blocks(matrix), tolerance=1e-6)
+        assert mg.converged and jacobi.converged
+        counts[level] = (mg.iterations, jacobi.iterations)
+    assert counts[7][1] > 2.5 * counts[3][1]                 # block-Jacobi grows
+    assert counts[7][0] <= counts[3][0] + 6, counts          # multigrid does not
+    assert counts[7][0] < counts[7][1] / 10, counts
+
+
+def test_lattice_prolongations_interpolate_linear_functions_exactly():
+    for uv in (refine_uniform(base_mesh(1.0, 1.0, 4, 4), 5).uv,
+               ClothSim.from_scene("hang_two_corners", ["cloth.level=6"]).rest_uv):
+        for p in lattice_hierarchy(uv, 1.0, 1.0, 0.25):
+            np.testing.assert_allclose(np.asarray(p.sum(axis=1)).ravel(), 1.0)  # partition of unity
+            assert np.all(np.asarray(p.sum(axis=0)).ravel() > 0)                 # no empty node
+            coarse_points = _coarse_points(p, uv)
+            linear = coarse_points @ [0.3, -0.7] + 0.1
+            np.testing.assert_allclose(p @ linear, uv @ [0.3, -0.7] + 0.1, atol=1e-12)
+            uv = coarse_points
+
+
+def _coarse_points(p, fine):
+    """The coarse nodes' (u, v), recovered from the interpolation: exact when
+    the nodes reproduce linear functions (least squares on a full-rank P)."""
+    return np.linalg.lstsq(p.toarray(), fine, rcond=None)[0]
+
+
+def test_auto_factorises_small_systems_and_uses_multigrid_on_large_ones():
+    small = ClothSim.from_scene("hang_two_corners")                       # adaptive, ~200 particles
+    large = ClothSim.from_scene("hang_two_corners", ["lod.enabled=false", "cloth.level=6"])
+    expected_small = "direct" if "direct" in solvers.available_methods() else "pcg"
+    assert small.step().solver == expected_small
+    assert large.step().solver == "multigrid"
+
+
+def test_every_solve_of_a_step_is_counted_and_timed(monkeypatch):
+    """Contact steps solve several times (friction rounds, re-solves): the
+    statistics count each call to the backend and include the first attempt's
+    time when a step is solved again."""
+    sim = ClothSim.from_scene("grasp_lift", ["cloth.level=4"])
+    calls = []
+    backend = sim.solver.backend
+    real = backend.solve
+
+    def spy(*args):
+        import time
+        start = time.perf_counter()
+        result = real(*args)
+        calls.append(1e3 * (time.perf_counter() - start))
+        return result
+    monkeypatch.setattr(backend, "solve", spy)
+    several = 0
+    for _ in range(40):
+        calls.clear()
+        stats = sim.step()
+        assert stats.solves == len(calls)
+        assert stats.solve_ms >= sum(calls) * 0.999
+        several += stats.solves > 1
+    assert several > 0
+
+
+@pytest.mark.parametrize("method", ["pcg", "multigrid", "direct", "superlu"])
+def test_backends_agree_over_a_run_within_the_tolerance(method):
+    """The same steps with each backend: trajectories within what the solver
+    tolerance allows (1e-4 relative: sub-millimetre over a short swing)."""
+    if method not in solvers.available_methods():
+        pytest.skip(f"{method} not installed")
+    base = ["lod.enabled=false", "cloth.level=4"]
+    ref = ClothSim.from_scene("hang_two_corners", base + ["solver.method=pcg", "solver.tolerance=1e-9"])
+    sim = ClothSim.from_scene("hang_two_corners", base + [f"solver.method={method}"])
+    for _ in range(30):
+        ref.step()
+        stats = sim.step()
+        assert stats.converged and stats.solver == method
+    assert np.abs(sim.positions - ref.positions).max() < 5e-4
