@@ -307,6 +307,35 @@ def test_compare_any_two_configurations(tmp_path):
     assert all(e["rms_m"] > 0 for e in result["errors"])             # coarser mesh differs
 
 
+def test_zero_duration_writes_the_initial_state_and_its_pictures(tmp_path, capsys):
+    """``run --duration 0`` used to crash in matplotlib after writing the npz."""
+    out = tmp_path / "zero.npz"
+    code = cli.main(["run", "hang_two_corners", "--duration", "0", "--frames", "3",
+                     "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "no steps taken" in captured.out and "Traceback" not in captured.err
+    initial = ClothSim(load_scene("hang_two_corners"))
+    with np.load(out) as d:
+        assert float(d["time"]) == 0.0
+        np.testing.assert_array_equal(d["x"], initial.positions)
+        np.testing.assert_array_equal(d["triangles"], initial.triangles)
+        assert d["stats_time"].shape == (0,) and d["stats_step_ms"].dtype == np.float64
+        assert d["stats_triangles_per_level"].shape == (0, initial.max_level + 1)
+    for suffix in (".png", "_levels.png", "_lod.png"):
+        assert out.with_name("zero" + suffix).read_bytes()[:8] == PNG_MAGIC, suffix
+
+
+@pytest.mark.parametrize("argv", [["--duration", "-1"], ["--duration", "-0.5"],
+                                  ["--dt", "-0.01"]])
+def test_negative_duration_or_step_exits_2(tmp_path, capsys, argv):
+    code = cli.main(["run", "hang_two_corners", "--out", str(tmp_path / "s.npz"), *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("cloth-lod: scene error:") and "Traceback" not in err
+    assert "simulation.duration" in err or "simulation.time_step" in err
+    assert not (tmp_path / "s.npz").exists()
+
+
 def _limited_cli(args, cwd, memory_bytes=1 << 30):
     """``cloth-lod`` in a subprocess with at most ``memory_bytes`` of address space."""
     import resource
