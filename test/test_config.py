@@ -275,8 +275,10 @@ def test_file_that_is_not_a_mapping_is_refused(tmp_path, text):
 
 def test_invalid_yaml_syntax_is_refused(tmp_path):
     path = write(tmp_path, "cloth: {width: 1.0, height: [1.0\nsimulation: :\n")
-    with pytest.raises(SceneError, match="not valid YAML"):
+    with pytest.raises(SceneError, match="not valid YAML") as info:
         load_scene(path)
+    assert "\n" not in str(info.value)                   # one line, with where it went wrong
+    assert "line 2" in str(info.value)
 
 
 def test_nonexistent_file_is_refused(tmp_path):

@@ -138,9 +138,22 @@ def _load_yaml(text: str | bytes, where: str):
     except SceneError as exc:
         raise SceneError(f"{where}: {exc}") from None
     except yaml.YAMLError as exc:
-        raise SceneError(f"{where}: not valid YAML ({exc})") from None
+        raise SceneError(f"{where}: not valid YAML: {_yaml_problem(exc)}") from None
     except RecursionError:
         raise SceneError(f"{where}: nested too deeply") from None
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """PyYAML's error on one line: problem, where, and what it was parsing."""
+    def at(mark):
+        return f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+    if isinstance(exc, yaml.MarkedYAMLError) and exc.problem:
+        text = exc.problem + at(exc.problem_mark)
+        if exc.context:
+            text += f" ({exc.context}{at(exc.context_mark)})"
+    else:
+        text = " ".join(str(exc).split())
+    return text if len(text) <= 300 else text[:297] + "..."
 
 
 def _spec(kind: str, unit: str = "", *, gt: float | None = None,
