@@ -277,6 +277,61 @@ def test_replay_detects_a_different_simulation(headless_bag, tmp_path):
     assert cli(["replay", str(tmp_path / "edited")]) == 1
 
 
+def _session_ending_in_inputs(path, scene):
+    """A session recorded the way the node records one, each segment ending the way
+    Ctrl-C (or a reset) ends it: poses received, and steps taken, after the last frame
+    was published.  Two segments (a reset between), two such inputs in each."""
+    from cloth_lod_ros.bag.recorder import SessionRecorder
+    from cloth_lod_ros.messages.frames import FrameBuilder
+    from cloth_lod_ros.sim import ClothSim
+    from cloth_lod_ros.sim.config import load_scene, scene_to_dict
+
+    sim = ClothSim(load_scene(scene))
+    recorder = SessionRecorder(path, "/", "none", grasp_names=[g.name for g in sim.grasps])
+    frames = FrameBuilder("world", 11)
+    recorder.start(sim, {}, 11)
+
+    def frame():
+        recorder.record_frame(frames.build(sim, divmod(time.time_ns(), 10**9)))
+
+    def target(z):
+        sim.set_grasp_target("hand", [0.5, 1.0, z])
+        recorder.record_input(sim, "grasp_target", grasp="hand", position=[0.5, 1.0, z])
+
+    for segment in range(2):
+        if segment:
+            sim = ClothSim(load_scene(scene))
+            recorder.record_input(sim, "reset", scene=scene_to_dict(sim.scene))
+        frame()
+        for k in range(4):
+            target(1.0 + 0.01 * k)
+            sim.step()
+            sim.step()
+            frame()
+        last_frame = sim.positions.copy()
+        for k in range(2):                  # after the last frame: no frame shows these
+            target(1.1 + 0.01 * k)
+            sim.step()
+        assert not np.array_equal(sim.positions, last_frame)   # they did change the cloth
+    recorder.close()
+
+
+def test_inputs_after_the_last_frame_are_counted_not_compared(scene_file, tmp_path, capsys):
+    """Replay used to simulate them and report NOT identical although every recorded
+    frame was exact."""
+    bag = tmp_path / "ends_in_inputs"
+    _session_ending_in_inputs(bag, scene_file)
+    result = replay(bag)
+    assert result["identical"], {k: v for k, v in result.items() if k != "frames"}
+    assert result["surface_identical"] == [True, True]
+    assert result["frame_count"] == 10 and result["resets"] == 1
+    assert result["inputs_applied"] == 8 and result["inputs_after_last_frame"] == 4
+    capsys.readouterr()
+    assert cli(["replay", str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert "4 input(s) came after the last recorded frame" in out and "IDENTICAL" in out
+
+
 # -- the node -------------------------------------------------------------------------------------
 def _set_parameter(node, name, value):
     request = SetParameters.Request(parameters=[Parameter(

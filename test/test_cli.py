@@ -305,3 +305,71 @@ def test_compare_any_two_configurations(tmp_path):
     assert result["adaptive"]["max_triangles"] == 128 and result["uniform"]["max_triangles"] == 256
     assert result["uniform"]["cg_iterations_mean"] == 0.0          # LU reference
     assert all(e["rms_m"] > 0 for e in result["errors"])             # coarser mesh differs
+
+
+def test_zero_duration_writes_the_initial_state_and_its_pictures(tmp_path, capsys):
+    """``run --duration 0`` used to crash in matplotlib after writing the npz."""
+    out = tmp_path / "zero.npz"
+    code = cli.main(["run", "hang_two_corners", "--duration", "0", "--frames", "3",
+                     "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "no steps taken" in captured.out and "Traceback" not in captured.err
+    initial = ClothSim(load_scene("hang_two_corners"))
+    with np.load(out) as d:
+        assert float(d["time"]) == 0.0
+        np.testing.assert_array_equal(d["x"], initial.positions)
+        np.testing.assert_array_equal(d["triangles"], initial.triangles)
+        assert d["stats_time"].shape == (0,) and d["stats_step_ms"].dtype == np.float64
+        assert d["stats_triangles_per_level"].shape == (0, initial.max_level + 1)
+    for suffix in (".png", "_levels.png", "_lod.png"):
+        assert out.with_name("zero" + suffix).read_bytes()[:8] == PNG_MAGIC, suffix
+
+
+@pytest.mark.parametrize("argv", [["--duration", "-1"], ["--duration", "-0.5"],
+                                  ["--dt", "-0.01"]])
+def test_negative_duration_or_step_exits_2(tmp_path, capsys, argv):
+    code = cli.main(["run", "hang_two_corners", "--out", str(tmp_path / "s.npz"), *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("cloth-lod: scene error:") and "Traceback" not in err
+    assert "simulation.duration" in err or "simulation.time_step" in err
+    assert not (tmp_path / "s.npz").exists()
+
+
+def _limited_cli(args, cwd, memory_bytes=1 << 30):
+    """``cloth-lod`` in a subprocess with at most ``memory_bytes`` of address space."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH", "")) if p)
+    return subprocess.run([sys.executable, "-m", "cloth_lod_ros.tools.cli", *args], cwd=cwd,
+                          env=env, capture_output=True, text=True, timeout=120,
+                          preexec_fn=limit)
+
+
+def test_hostile_scene_files_are_refused_in_bounded_memory(tmp_path):
+    """A YAML alias bomb (9^9 strings once expanded) used to run for a minute and take
+    gigabytes; 100 000-deep nesting and a 400-digit integer ended in tracebacks.
+    Each must now be one line of error, exit 2, within 1 GB of address space."""
+    lines = ["name:", '  - &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    lines += [f"  - &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, 9)]
+    rest = "cloth: {width: 1, height: 1, base_blocks: [4, 4]}\n" \
+           "simulation: {time_step: 0.01, duration: 1}\n"
+    cases = {
+        "bomb.yaml": ("\n".join(lines) + "\n" + rest, "alias"),
+        "deep.yaml": ("description: " + "[" * 100_000 + "]" * 100_000 + "\n" + rest, "nested"),
+        "digits.yaml": (rest + "solver: {max_iterations: " + "9" * 400 + "}\n",
+                        "'solver.max_iterations' is too large"),
+        "blocks.yaml": (rest.replace("[4, 4]", "[4000, 4000]").replace("1, height: 1",
+                                                                         "4000, height: 4000"),
+                        "'cloth.base_blocks'"),
+    }
+    for name, (text, expected) in cases.items():
+        (tmp_path / name).write_text(text)
+        proc = _limited_cli(["run", name, "--no-png", "--quiet"], tmp_path)
+        assert proc.returncode == 2, (name, proc.stderr[-2000:])
+        assert proc.stderr.startswith("cloth-lod: scene error:"), (name, proc.stderr[-2000:])
+        assert expected in proc.stderr and len(proc.stderr.splitlines()) == 1, proc.stderr
+        assert len(proc.stderr) < 400 and "lol" not in proc.stderr

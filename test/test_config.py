@@ -12,8 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cloth_lod_ros.sim.config import (
-    SceneConfig, SceneError, apply_overrides, builtin_scene_names, find_scene_file,
-    load_scene, scene_from_dict, scene_to_dict,
+    MAX_NESTING, MAX_SCENE_BYTES, MAX_TRIANGLES, SceneConfig, SceneError, apply_overrides,
+    builtin_scene_names, find_scene_file, load_scene, scene_from_dict, scene_to_dict,
 )
 
 BUILTIN = "hang_two_corners"
@@ -275,22 +275,174 @@ def test_file_that_is_not_a_mapping_is_refused(tmp_path, text):
 
 def test_invalid_yaml_syntax_is_refused(tmp_path):
     path = write(tmp_path, "cloth: {width: 1.0, height: [1.0\nsimulation: :\n")
-    with pytest.raises(SceneError, match="not valid YAML"):
+    with pytest.raises(SceneError, match="not valid YAML") as info:
         load_scene(path)
+    assert "\n" not in str(info.value)                   # one line, with where it went wrong
+    assert "line 2" in str(info.value)
 
 
 def test_nonexistent_file_is_refused(tmp_path):
     missing = tmp_path / "nope" / "missing.yaml"
     with pytest.raises(SceneError, match="does not exist"):
         load_scene(missing)
-    with pytest.raises(SceneError, match="does not exist"):
-        load_scene(tmp_path)                              # a directory, not a file
+
+
+def test_directory_is_refused_as_a_directory(tmp_path):
+    with pytest.raises(SceneError, match="is a directory") as info:
+        load_scene(tmp_path)
+    assert "does not exist" not in str(info.value)
+    (tmp_path / "scene.yaml").mkdir()
+    with pytest.raises(SceneError, match="is a directory"):
+        load_scene(tmp_path / "scene.yaml")
+
+
+def test_builtin_name_wins_over_a_directory_of_that_name(tmp_path, monkeypatch):
+    """``cloth-lod run hang_two_corners --bag hang_two_corners`` leaves such a directory."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / BUILTIN).mkdir()
+    assert load_scene(BUILTIN) == load_scene(find_scene_file(BUILTIN))
+    assert find_scene_file(BUILTIN).is_file()
+    (tmp_path / "not_a_scene").mkdir()
+    with pytest.raises(SceneError, match="is a directory"):
+        load_scene("not_a_scene")
 
 
 def test_unknown_builtin_scene_name_is_refused():
     with pytest.raises(SceneError, match="unknown scene 'no_such_scene'") as info:
         load_scene("no_such_scene")
     assert BUILTIN in str(info.value)                     # lists the alternatives
+
+
+# -- bounded loading: hostile or absurd scene files ---------------------------------
+#
+# Each case must be refused with a SceneError that names the problem, before any
+# expensive work.  An alias bomb of depth 8 (9^9 strings) used to take a minute and
+# gigabytes, because the error message printed the expanded document; test_cli runs
+# that one in a memory-limited subprocess, these use depth 5 (still 9^6 strings).
+
+def alias_bomb(depth=5):
+    lines = ["name:", '  - &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    lines += [f"  - &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, depth + 1)]
+    return "\n".join(lines) + ("\ncloth: {width: 1, height: 1, base_blocks: [4, 4]}\n"
+                               "simulation: {time_step: 0.01, duration: 1}\n")
+
+
+MINIMAL = "cloth: {width: 1, height: 1, base_blocks: [4, 4]}\n" \
+          "simulation: {time_step: 0.01, duration: 1}\n"
+
+
+def test_yaml_aliases_are_refused_before_they_expand(tmp_path):
+    with pytest.raises(SceneError) as info:
+        load_scene(write(tmp_path, alias_bomb()))
+    message = str(info.value)
+    assert "alias" in message and "line 3" in message and len(message) < 300, message
+    assert "lol" not in message
+    # A single, harmless alias too: scene files do not need them.
+    with pytest.raises(SceneError, match="alias"):
+        load_scene(write(tmp_path, MINIMAL + "lod: &l {enabled: true}\nsolver: *l\n"))
+
+
+def test_an_alias_bomb_in_an_override_is_refused():
+    bomb = "[&a [1, 1, 1, 1, 1, 1, 1, 1, 1], " + ", ".join(
+        f"&a{i} [{', '.join([f'*a{i - 1}' if i > 1 else '*a'] * 9)}]" for i in range(1, 6)) + "]"
+    with pytest.raises(SceneError, match="alias") as info:
+        load_scene(BUILTIN, [f"name={bomb}"])
+    assert len(str(info.value)) < 300
+
+
+@pytest.mark.parametrize("nested", ["[" * 100_000 + "]" * 100_000,
+                                    "{a: " * 5000 + "1" + "}" * 5000])
+def test_deep_nesting_is_refused_not_a_recursion_error(tmp_path, nested):
+    with pytest.raises(SceneError, match=f"nested more than {MAX_NESTING}") as info:
+        load_scene(write(tmp_path, MINIMAL + f"description: {nested}\n"))
+    assert len(str(info.value)) < 300
+    with pytest.raises(SceneError, match="nested"):
+        load_scene(BUILTIN, [f"cloth.origin={nested}"])
+
+
+def test_the_deepest_real_scene_nesting_is_accepted(tmp_path):
+    """grasps[i].waypoints[j][k]: five levels of mappings and lists."""
+    scene = load_scene(write(tmp_path, MINIMAL + "grasps: [{name: g, uv: [0, 1], "
+                                                 "waypoints: [[0, 1, 2, 3]]}]\n"))
+    assert scene.grasps[0].waypoints == ((0.0, 1.0, 2.0, 3.0),)
+
+
+@pytest.mark.parametrize("field, value", [
+    ("cloth.level", "9" * 400),
+    ("cloth.width", "9" * 400),                 # would overflow a float
+    ("cloth.width", "-" + "9" * 5000),          # more digits than Python converts
+    ("solver.max_iterations", "9" * 30),
+    ("lod.check_interval", str(2 ** 31)),
+    ("cloth.base_blocks", f"[{'9' * 400}, {'9' * 400}]"),
+])
+def test_absurdly_large_integers_are_refused_by_field(tmp_path, field, value):
+    section, key = field.split(".")
+    data = yaml.safe_load(MINIMAL)
+    data.setdefault(section, {})[key] = "PLACEHOLDER"
+    path = write(tmp_path, yaml.safe_dump(data).replace("PLACEHOLDER", value))
+    for load in (lambda: load_scene(path), lambda: load_scene(BUILTIN, [f"{field}={value}"])):
+        with pytest.raises(SceneError, match="too large") as info:
+            load()
+        assert f"'{field}" in str(info.value) and len(str(info.value)) < 300, str(info.value)
+
+
+def test_large_integers_given_as_python_values_are_refused_by_field():
+    data = valid_scene()
+    data["cloth"]["width"] = 10 ** 400
+    with pytest.raises(SceneError, match="'cloth.width' is too large"):
+        scene_from_dict(data)
+    data = valid_scene()
+    data["solver"]["max_iterations"] = 1e300
+    with pytest.raises(SceneError, match="'solver.max_iterations' is too large"):
+        scene_from_dict(data)
+
+
+@pytest.mark.parametrize("override, field", [
+    ("simulation.time_step=1e-300", "simulation.time_step"),
+    ("simulation.duration=1e300", "simulation.duration"),
+])
+def test_absurd_step_counts_are_refused(override, field):
+    with pytest.raises(SceneError, match=f"'{field}'"):
+        load_scene(BUILTIN, [override])
+
+
+def test_mesh_size_is_capped(tmp_path):
+    """base_blocks [4000, 4000] used to be accepted and then exhaust memory."""
+    data = valid_scene()
+    data["cloth"].update(width=4000.0, height=4000.0, base_blocks=[4000, 4000], level=0)
+    with pytest.raises(SceneError, match="'cloth.base_blocks'") as info:
+        load_scene(write(tmp_path, data))
+    assert f"{MAX_TRIANGLES:,}" in str(info.value)
+    with pytest.raises(SceneError, match="'cloth.level'"):
+        load_scene(BUILTIN, ["cloth.base_blocks=[4000, 4000]"])
+    # Exactly at the limit is allowed (validated only, not built); one level more is not.
+    data["cloth"].update(width=1024.0, height=1024.0, base_blocks=[1024, 1024], level=0)
+    assert 2 * 1024 * 1024 == MAX_TRIANGLES
+    assert scene_from_dict(data).cloth.base_blocks == (1024, 1024)
+    data["cloth"]["level"] = 1
+    with pytest.raises(SceneError, match="triangles"):
+        scene_from_dict(data)
+
+
+def test_scene_files_over_the_size_limit_are_refused_unread(tmp_path):
+    path = write(tmp_path, MINIMAL + "# " + "x" * MAX_SCENE_BYTES + "\n")
+    with pytest.raises(SceneError, match=f"larger than {MAX_SCENE_BYTES} bytes"):
+        load_scene(path)
+    with pytest.raises(SceneError, match="larger than"):
+        load_scene(BUILTIN, ["description=" + "x" * (MAX_SCENE_BYTES + 1)])
+
+
+def test_error_messages_quote_big_values_shortened(tmp_path):
+    data = yaml.safe_load(MINIMAL)
+    data["name"] = list(range(100_000))
+    with pytest.raises(SceneError, match="'name' must be a string") as info:
+        load_scene(write(tmp_path, data))
+    assert len(str(info.value)) < 300
+    data = yaml.safe_load(MINIMAL)
+    data["x" * 100_000] = 1
+    with pytest.raises(SceneError, match="unknown field") as info:
+        load_scene(write(tmp_path, data))
+    assert len(str(info.value)) < 300
 
 
 def test_scene_error_is_a_value_error():

@@ -6,6 +6,10 @@ recording, and compares each recorded frame with the replayed state: the
 ``cloth/grid`` samples (the same material points whatever the mesh; float32
 as published), the triangle count, and - on the last frame of each segment -
 every surface triangle corner of ``cloth/markers`` (float64, bit for bit).
+
+Inputs recorded after the last frame of a segment (the poses that arrive
+between the final frame and Ctrl-C, or before a reset) have no recorded result
+to be compared with: they are counted, not simulated.
 """
 
 from __future__ import annotations
@@ -45,7 +49,9 @@ def replay(path, progress=None) -> dict:
         A JSON-ready dict: per compared frame the simulated time, RMS and max
         distance of the grid samples (m), and whether the triangle count matched;
         overall maxima; ``surface_identical`` per segment (float64 corners of
-        the last recorded surface, bit for bit); ``identical`` when everything
+        the last recorded surface, bit for bit); ``inputs_applied`` and
+        ``inputs_after_last_frame`` (inputs no later frame of their segment
+        records, so not simulated or compared); ``identical`` when everything
         compared is exactly equal.
 
     Raises:
@@ -60,12 +66,26 @@ def replay(path, progress=None) -> dict:
     if session.get("start_step_count", 0):
         raise BagError(f"{path}: the recording starts at step {session['start_step_count']} "
                        "of a running simulation; replay needs a recording from the start")
+    # Which inputs a later frame of the same segment records the effect of.
+    events = [json.loads(decode(m.data, m.type_name).data)
+              if m.topic.endswith("cloth/inputs") else None for m in messages]
+    is_frame, seen_grid = [], False
+    for m in messages:
+        seen_grid = seen_grid or m.topic.endswith("cloth/grid")
+        is_frame.append(m.topic.endswith("cloth/lod_stats") and seen_grid)
+    compared, frame_follows = [False] * len(messages), False
+    for i in reversed(range(len(messages))):
+        if events[i] is not None and events[i]["kind"] == "reset":
+            frame_follows = False
+        compared[i] = frame_follows
+        frame_follows = frame_follows or is_frame[i]
     resolution = int(session["grid_resolution"])
     sim = ClothSim(scene_from_dict(session["scene"]))
     uv = grid_uv(sim.scene, resolution)
     frames, segments, surface_checks = [], [], []
     last_markers = last_grid = None
     frame_markers = None            # the markers message of the latest compared frame
+    inputs_applied = inputs_after_last_frame = 0
 
     def advance(step_count: int) -> None:
         if step_count < sim.step_count:
@@ -87,9 +107,8 @@ def replay(path, progress=None) -> dict:
         surface_checks.append(bool(recorded is not None and recorded.shape == replayed.shape
                                    and np.array_equal(recorded, replayed)))
 
-    for m in messages:
-        if m.topic.endswith("cloth/inputs"):
-            event = json.loads(decode(m.data, m.type_name).data)
+    for m, event, before_a_frame in zip(messages, events, compared):
+        if event is not None:
             if event["kind"] == "reset":
                 check_surface()
                 frame_markers = None
@@ -97,8 +116,12 @@ def replay(path, progress=None) -> dict:
                 sim = ClothSim(scene_from_dict(event["scene"]))
                 uv = grid_uv(sim.scene, resolution)
                 continue
+            if not before_a_frame:       # nothing recorded shows its effect: not simulated
+                inputs_after_last_frame += 1
+                continue
             advance(int(event["step_count"]))
             _apply(sim, event)
+            inputs_applied += 1
         elif m.topic.endswith("cloth/markers"):
             last_markers = m
         elif m.topic.endswith("cloth/grid"):
@@ -123,7 +146,8 @@ def replay(path, progress=None) -> dict:
     check_surface()
     rms = [f["rms_m"] for f in frames]
     return dict(bag=str(path), frames=frames, frame_count=len(frames),
-                resets=len(segments),
+                resets=len(segments), inputs_applied=inputs_applied,
+                inputs_after_last_frame=inputs_after_last_frame,
                 max_distance_m=max((f["max_m"] for f in frames), default=0.0),
                 max_rms_m=max(rms, default=0.0),
                 all_grid_exact=all(f["exact"] for f in frames),
@@ -137,7 +161,11 @@ def format_replay(result: dict) -> str:
     """Text summary of :func:`replay`."""
     frames = result["frames"]
     lines = [f"{result['bag']}: replayed {result['frame_count']} recorded frames "
-             f"({result['resets']} reset(s))"]
+             f"({result['resets']} reset(s)), {result['inputs_applied']} input(s) applied"]
+    if result["inputs_after_last_frame"]:
+        lines.append(f"  {result['inputs_after_last_frame']} input(s) came after the last "
+                     "recorded frame (of the session or before a reset): no frame shows "
+                     "their effect, so they were not compared")
     if frames:
         lines.append(f"  grid distance replayed vs recorded: max {result['max_distance_m']:.3g} m, "
                      f"worst-frame RMS {result['max_rms_m']:.3g} m")

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import sys
 import time
 
 import rclpy
@@ -593,11 +594,17 @@ def _forward_library_logs(ros_logger) -> None:
 
 
 def main(args=None) -> None:
-    """Entry point (``cloth_lod_node``); Ctrl-C and SIGTERM end it with code 0."""
+    """Entry point (``cloth_lod_node``); Ctrl-C and SIGTERM end it with code 0, a bad
+    ``scene`` with one line on stderr and code 2."""
+    import sys
     rclpy.init(args=args)
     node = None
     try:
-        node = ClothLodNode()
+        try:
+            node = ClothLodNode()
+        except SceneError as exc:       # a bad `scene`: one line, as the CLI says it
+            print(f"cloth_lod_node: scene error: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
         # Threads: stepping and publishing; poses; service calls; parameters.
         executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)

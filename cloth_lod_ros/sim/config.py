@@ -5,6 +5,12 @@ and ``solver`` (see ``config/scenes/hang_two_corners.yaml`` for every field with
 its unit).  Loading is strict: a missing required field, an unknown field, a
 value of the wrong type or out of range raises :class:`SceneError` whose message
 names the field by its dotted path (``material.density``).
+
+Scene files are input from anywhere, so loading is also bounded: a file of at
+most :data:`MAX_SCENE_BYTES`, no YAML aliases (``*name``: scene files do not
+need them, and nested aliases expand exponentially), nesting at most
+:data:`MAX_NESTING` deep, numbers that fit their field, and a finest mesh of at
+most :data:`MAX_TRIANGLES` triangles.  Error messages quote values shortened.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ import dataclasses
 import math
 import os
 import re
+import reprlib
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,19 +34,88 @@ __all__ = [
     "SimulationConfig", "SolverConfig", "SceneConfig",
     "load_scene", "scene_from_dict", "scene_to_dict", "apply_overrides",
     "find_scene_file", "builtin_scene_names", "scenes_directory",
+    "MAX_SCENE_BYTES", "MAX_NESTING", "MAX_TRIANGLES", "MAX_INTEGER",
 ]
+
+#: Largest scene file (bytes); also the longest ``--set`` value.
+MAX_SCENE_BYTES = 1_000_000
+#: Deepest nesting of mappings and lists (a scene needs 5: grasps[i].waypoints[j][k]).
+MAX_NESTING = 16
+#: Most triangles of the finest uniform mesh, 2 x blocks_u x blocks_v x 2^cloth.level
+#: (2^21: base_blocks [1024, 1024] at level 0, a 1025 x 1025 particle grid).
+MAX_TRIANGLES = 2 ** 21
+#: Largest value of an integer field.
+MAX_INTEGER = 2 ** 31 - 1
+# An integer scalar longer than this is refused by field name without being
+# converted (Python refuses to convert more than 4300 digits anyway).
+_MAX_INTEGER_CHARS = 100
 
 
 class SceneError(ValueError):
     """A scene file or override is malformed; the message names the field."""
 
 
-class _SceneLoader(yaml.SafeLoader):
-    """Safe YAML loader that also reads ``1e-5`` as a float.
+_REPR = reprlib.Repr()
+_REPR.maxstring = _REPR.maxother = 60
+_REPR.maxlong = 40
+_REPR.maxlist = _REPR.maxtuple = 6
+_REPR.maxdict = 4
+_REPR.maxlevel = 3
 
-    PyYAML follows YAML 1.1, where a float needs a dot (``1.0e-5``); YAML 1.2
-    and every user's expectation accept ``1e-5``.
+
+def _show(value: Any) -> str:
+    """``repr`` for error messages, shortened: never the whole of a big value."""
+    return _REPR.repr(value)
+
+
+class _HugeInteger:
+    """An integer scalar too long to be any field's value; kept (unconverted)
+    so that the field it was given for is named in the refusal."""
+
+    def __init__(self, text: str):
+        self.digits = len(text.lstrip("+-"))
+
+    def __repr__(self) -> str:
+        return f"<an integer of {self.digits} digits>"
+
+
+class _SceneLoader(yaml.SafeLoader):
+    """Safe YAML loader for scene files.
+
+    It reads ``1e-5`` as a float (PyYAML follows YAML 1.1, where a float needs a
+    dot, ``1.0e-5``; YAML 1.2 and every user's expectation accept ``1e-5``), and
+    it refuses, while parsing, what would make loading unbounded: aliases
+    (``*name``; a few lines of nested aliases expand to gigabytes) and nesting
+    deeper than :data:`MAX_NESTING`.
     """
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise SceneError(f"line {event.start_mark.line + 1}: YAML aliases "
+                             f"(*{event.anchor[:40]}) are not allowed in scene files; "
+                             "write the values out")
+        self._depth += 1
+        try:
+            if self._depth > MAX_NESTING and not self.check_event(yaml.ScalarEvent):
+                mark = self.peek_event().start_mark
+                raise SceneError(f"line {mark.line + 1}: nested more than {MAX_NESTING} "
+                                 "levels deep (a scene needs at most 5)")
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_yaml_int(self, node):
+        if len(node.value) > _MAX_INTEGER_CHARS:
+            return _HugeInteger(node.value)
+        return super().construct_yaml_int(node)
+
+
+_SceneLoader.add_constructor("tag:yaml.org,2002:int", _SceneLoader.construct_yaml_int)
 
 
 _SceneLoader.add_implicit_resolver(
@@ -52,8 +128,32 @@ _SceneLoader.add_implicit_resolver(
     list("-+0123456789."))
 
 
-def _load_yaml(text: str):
-    return yaml.load(text, Loader=_SceneLoader)  # noqa: S506 - safe loader subclass
+def _load_yaml(text: str | bytes, where: str):
+    """Parse scene YAML; every failure is a :class:`SceneError` starting ``where: ``."""
+    if len(text) > MAX_SCENE_BYTES:
+        raise SceneError(f"{where}: larger than {MAX_SCENE_BYTES} bytes, the most a "
+                         "scene may have")
+    try:
+        return yaml.load(text, Loader=_SceneLoader)  # noqa: S506 - safe loader subclass
+    except SceneError as exc:
+        raise SceneError(f"{where}: {exc}") from None
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{where}: not valid YAML: {_yaml_problem(exc)}") from None
+    except RecursionError:
+        raise SceneError(f"{where}: nested too deeply") from None
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """PyYAML's error on one line: problem, where, and what it was parsing."""
+    def at(mark):
+        return f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+    if isinstance(exc, yaml.MarkedYAMLError) and exc.problem:
+        text = exc.problem + at(exc.problem_mark)
+        if exc.context:
+            text += f" ({exc.context}{at(exc.context_mark)})"
+    else:
+        text = " ".join(str(exc).split())
+    return text if len(text) <= 300 else text[:297] + "..."
 
 
 def _spec(kind: str, unit: str = "", *, gt: float | None = None,
@@ -167,8 +267,8 @@ class GraspConfig:
 
 @dataclass(frozen=True)
 class SimulationConfig:
-    time_step: float = _spec("float", "s", gt=0, le=1.0, doc="implicit Euler step h")
-    duration: float = _spec("float", "s", ge=0, doc="simulated time of a run")
+    time_step: float = _spec("float", "s", ge=1e-6, le=1.0, doc="implicit Euler step h")
+    duration: float = _spec("float", "s", ge=0, le=1e9, doc="simulated time of a run")
     gravity: tuple = _spec("vec3", "m/s^2", default=(0.0, 0.0, -9.81))
 
 
@@ -233,18 +333,33 @@ _SECTION_TYPES = {"cloth": ClothConfig, "simulation": SimulationConfig,
 
 
 def _number(value: Any, path: str, integer: bool = False) -> float:
+    if isinstance(value, _HugeInteger):
+        raise SceneError(f"field '{path}' is too large: {value!r}")
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(f"field '{path}' must be a number, got {value!r}")
-    if integer and not float(value).is_integer():
-        raise SceneError(f"field '{path}' must be an integer, got {value!r}")
+        raise SceneError(f"field '{path}' must be a number, got {_show(value)}")
+    if isinstance(value, int):
+        if integer and abs(value) > MAX_INTEGER:
+            raise SceneError(f"field '{path}' is too large: {_show(value)} "
+                             f"(at most {MAX_INTEGER})")
+        try:
+            float(value)
+        except OverflowError:
+            raise SceneError(f"field '{path}' is too large: {_show(value)} "
+                             "(overflows a float)") from None
+        return value if integer else float(value)
     if not math.isfinite(value):
         raise SceneError(f"field '{path}' must be finite, got {value!r}")
+    if integer and not value.is_integer():
+        raise SceneError(f"field '{path}' must be an integer, got {value!r}")
+    if integer and abs(value) > MAX_INTEGER:
+        raise SceneError(f"field '{path}' is too large: {value!r} (at most {MAX_INTEGER})")
     return int(value) if integer else float(value)
 
 
 def _vector(value: Any, path: str, length: int) -> tuple:
     if not isinstance(value, (list, tuple)) or len(value) != length:
-        raise SceneError(f"field '{path}' must be a list of {length} numbers, got {value!r}")
+        raise SceneError(f"field '{path}' must be a list of {length} numbers, "
+                         f"got {_show(value)}")
     return tuple(_number(v, f"{path}[{i}]") for i, v in enumerate(value))
 
 
@@ -253,11 +368,14 @@ def _check_bounds(value, meta: dict, path: str) -> None:
     items = value if isinstance(value, tuple) else (value,)
     for item in items:
         if meta["gt"] is not None and not item > meta["gt"]:
-            raise SceneError(f"field '{path}' must be > {meta['gt']}{unit}, got {value!r}")
+            raise SceneError(f"field '{path}' must be > {meta['gt']}{unit}, "
+                             f"got {_show(value)}")
         if meta["ge"] is not None and not item >= meta["ge"]:
-            raise SceneError(f"field '{path}' must be >= {meta['ge']}{unit}, got {value!r}")
+            raise SceneError(f"field '{path}' must be >= {meta['ge']}{unit}, "
+                             f"got {_show(value)}")
         if meta["le"] is not None and not item <= meta["le"]:
-            raise SceneError(f"field '{path}' must be <= {meta['le']}{unit}, got {value!r}")
+            raise SceneError(f"field '{path}' must be <= {meta['le']}{unit}, "
+                             f"got {_show(value)}")
 
 
 def _convert(value: Any, meta: dict, path: str, section_type=None):
@@ -289,15 +407,15 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
             c / norm for c in vec)
     elif kind == "bool":
         if not isinstance(value, bool):
-            raise SceneError(f"field '{path}' must be true or false, got {value!r}")
+            raise SceneError(f"field '{path}' must be true or false, got {_show(value)}")
         return value
     elif kind == "str":
         if not isinstance(value, str):
-            raise SceneError(f"field '{path}' must be a string, got {value!r}")
+            raise SceneError(f"field '{path}' must be a string, got {_show(value)}")
         out = value
         if meta["choices"] and value not in meta["choices"]:
             raise SceneError(f"field '{path}' must be one of {list(meta['choices'])}, "
-                             f"got {value!r}")
+                             f"got {_show(value)}")
     elif kind == "quat":
         vec = _vector(value, path, 4)
         norm = math.sqrt(sum(c * c for c in vec))
@@ -314,7 +432,7 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
                         for i, o in enumerate(out))
         names = [o.name for o in out]
         if len(set(names)) != len(names):
-            raise SceneError(f"field '{path}' has duplicate names {names}")
+            raise SceneError(f"field '{path}' has duplicate names {_show(names)}")
     elif kind == "waypoints":
         if not isinstance(value, (list, tuple)):
             raise SceneError(f"field '{path}' must be a list of [t, x, y, z]")
@@ -330,7 +448,7 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
                     for i, p in enumerate(out))
         names = [p.name for p in out]
         if len(set(names)) != len(names):
-            raise SceneError(f"field '{path}' has duplicate pin names {names}")
+            raise SceneError(f"field '{path}' has duplicate pin names {_show(names)}")
     else:  # pragma: no cover - programming error
         raise AssertionError(kind)
     _check_bounds(out, meta, path)
@@ -341,12 +459,13 @@ def _build(cls, data: Any, path: str):
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise SceneError(f"field '{path}' must be a mapping, got {data!r}")
+        raise SceneError(f"field '{path}' must be a mapping, got {_show(data)}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     prefix = f"{path}." if path else ""
     for key in data:
         if key not in fields:
-            raise SceneError(f"unknown field '{prefix}{key}' "
+            shown = key if isinstance(key, str) and len(key) <= 60 else _show(key)
+            raise SceneError(f"unknown field '{prefix}{shown}' "
                              f"(expected one of: {', '.join(fields)})")
     kwargs = {}
     for name, f in fields.items():
@@ -364,6 +483,12 @@ def scene_from_dict(data: Any) -> SceneConfig:
     """Validate a parsed scene mapping and build a :class:`SceneConfig`."""
     scene = _build(SceneConfig, data, "")
     cloth = scene.cloth
+    triangles = 2 * cloth.base_blocks[0] * cloth.base_blocks[1] * 2 ** cloth.level
+    if triangles > MAX_TRIANGLES:
+        raise SceneError(
+            f"fields 'cloth.base_blocks' {list(cloth.base_blocks)} and 'cloth.level' "
+            f"{cloth.level} ask for a finest mesh of {triangles:,} triangles "
+            f"(2 x blocks_u x blocks_v x 2^level); the limit is {MAX_TRIANGLES:,}")
     side_u = cloth.width / cloth.base_blocks[0]
     side_v = cloth.height / cloth.base_blocks[1]
     if not math.isclose(side_u, side_v, rel_tol=1e-12):
@@ -393,7 +518,7 @@ def scene_from_dict(data: Any) -> SceneConfig:
                 and grasp.open_time <= grasp.close_time):
             raise SceneError(f"field 'grasps[{i}].open_time' must come after close_time")
         if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", grasp.name):  # ASCII: str.isalnum takes "é"
-            raise SceneError(f"field 'grasps[{i}].name' = {grasp.name!r} must be letters, "
+            raise SceneError(f"field 'grasps[{i}].name' = {_show(grasp.name)} must be letters, "
                              "digits and underscores, not starting with a digit (it names ROS topics)")
     for i, pin in enumerate(scene.pins):
         u, v = pin.uv
@@ -442,16 +567,12 @@ def apply_overrides(data: dict, overrides: list[str] | dict) -> dict:
 
 def _split_override(text: str):
     if "=" not in text:
-        raise SceneError(f"override {text!r} must look like key=value")
+        raise SceneError(f"override {_show(text)} must look like key=value")
     key, raw = text.split("=", 1)
     key = key.strip()
     if not key:
-        raise SceneError(f"override {text!r} has an empty key")
-    try:
-        value = _load_yaml(raw)
-    except yaml.YAMLError as exc:
-        raise SceneError(f"override {text!r}: value is not valid YAML ({exc})") from exc
-    return key, value
+        raise SceneError(f"override {_show(text)} has an empty key")
+    return key, _load_yaml(raw, f"override {_show(text)}")
 
 
 def scenes_directory() -> Path:
@@ -472,18 +593,34 @@ def builtin_scene_names() -> list[str]:
     return sorted(p.stem for p in scenes_directory().glob("*.yaml"))
 
 
+def _not_a_scene_file(path: Path) -> SceneError:
+    if path.is_dir():
+        return SceneError(f"scene path {_show(str(path))} is a directory, not a scene file")
+    if path.exists():
+        return SceneError(f"scene path {_show(str(path))} is not a regular file")
+    return SceneError(f"scene file {_show(str(path))} does not exist")
+
+
 def find_scene_file(scene: str | os.PathLike) -> Path:
-    """Resolve a built-in scene name or a YAML file path."""
+    """Resolve a built-in scene name or a YAML file path.
+
+    A path to an existing file wins; ``name`` (no ``.yaml``/``.yml``, no
+    directory part) is otherwise a built-in scene, even if a directory of that
+    name exists here.
+    """
     path = Path(scene)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        if not path.is_file():
-            raise SceneError(f"scene file {str(path)!r} does not exist")
+    if path.is_file():
         return path
+    text = str(scene)
+    if path.suffix in (".yaml", ".yml") or os.sep in text or (os.altsep and os.altsep in text):
+        raise _not_a_scene_file(path)
     candidate = scenes_directory() / f"{scene}.yaml"
-    if not candidate.is_file():
-        raise SceneError(f"unknown scene {str(scene)!r}; built-in scenes: "
-                         f"{', '.join(builtin_scene_names())}")
-    return candidate
+    if candidate.is_file():
+        return candidate
+    if path.exists():
+        raise _not_a_scene_file(path)
+    raise SceneError(f"unknown scene {_show(text)}; built-in scenes: "
+                     f"{', '.join(builtin_scene_names())}")
 
 
 def load_scene(scene: str | os.PathLike,
@@ -496,11 +633,11 @@ def load_scene(scene: str | os.PathLike,
     """
     path = find_scene_file(scene)
     try:
-        data = _load_yaml(path.read_text())
-    except yaml.YAMLError as exc:
-        raise SceneError(f"{path}: not valid YAML ({exc})") from exc
+        with open(path, "rb") as f:
+            text = f.read(MAX_SCENE_BYTES + 1)       # never more than the limit
     except OSError as exc:
         raise SceneError(f"{path}: cannot read ({exc})") from exc
+    data = _load_yaml(text, str(path))
     if not isinstance(data, dict):
         raise SceneError(f"{path}: a scene file must be a mapping of sections")
     if overrides:

@@ -48,6 +48,12 @@ def save_state(path: Path, sim: ClothSim) -> None:
     fields = StepStats.__dataclass_fields__
     stats = {f"stats_{name}": np.array([getattr(s, name) for s in sim.stats])
              for name in fields}
+    if not sim.stats:                   # zero steps: empty arrays of the documented shapes
+        kinds = {"int": np.int64, "bool": np.bool_, "float": np.float64}
+        stats = {f"stats_{name}": np.zeros(0, kinds.get(getattr(f.type, "__name__", f.type),
+                                                          np.float64))
+                 for name, f in fields.items()}
+        stats["stats_triangles_per_level"] = np.zeros((0, sim.max_level + 1), np.int64)
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(
         path, x=sim.positions, v=sim.velocities, uv=sim.rest_uv, mass=sim.masses,
@@ -59,7 +65,9 @@ def save_state(path: Path, sim: ClothSim) -> None:
 def _summary(sim: ClothSim, wall: float) -> str:
     st = sim.stats
     if not st:
-        return "no steps taken"
+        return (f"scene {sim.scene.name}: no steps taken (duration 0 s), the initial state "
+                f"at t = {sim.time:.3f} s; {sim.mesh.vertex_count} particles, "
+                f"{sim.mesh.triangle_count} triangles")
     it = np.array([s.cg_iterations for s in st])
     step_ms = np.array([s.step_ms for s in st])
     unconverged = sum(not s.converged for s in st)
@@ -120,7 +128,7 @@ def _cmd_run(args) -> int:
     frame_count = max(int(args.frames), 1)
     frame_steps = set(np.linspace(0, steps, frame_count).round().astype(int)[1:-1])
     frames = []
-    if frame_count > 1:
+    if frame_count > 1 and steps > 0:          # zero steps: one panel, the initial state
         frames.append(_frame(sim))
 
     def progress(s, stats):

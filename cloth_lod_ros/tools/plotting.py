@@ -581,13 +581,24 @@ def render_lod_history(path, stats, title: str = "") -> None:
     """Triangle count (per level) and the share of step time spent in LOD, over time.
 
     Args:
-        stats: sequence of :class:`cloth_lod_ros.sim.StepStats`.
+        stats: sequence of :class:`cloth_lod_ros.sim.StepStats` (empty: a picture
+            that says no step was taken).
     """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
+    if not len(stats):
+        fig, ax = plt.subplots(figsize=(8, 3), dpi=100)
+        ax.text(0.5, 0.5, "no steps taken: no adaptive-mesh history", ha="center",
+                va="center", transform=ax.transAxes)
+        ax.set_axis_off()
+        if title:
+            fig.suptitle(title, fontsize=11)
+        fig.savefig(path)
+        plt.close(fig)
+        return
     time = np.array([s.time for s in stats])
     per_level = np.array([s.triangles_per_level for s in stats]).T
     lod_ms = np.array([s.lod_ms for s in stats])
