@@ -174,3 +174,21 @@ def test_from_json_rewrites_the_same_tables(tiny, tmp_path):
     assert (tmp_path / "bench.md").read_text() == (out / "bench.md").read_text()
     assert json.loads((tmp_path / "bench.json").read_text()) == data
     assert (tmp_path / "bench.png").read_bytes()[:8] == PNG_MAGIC
+
+
+def test_solver_comparison_runs_every_backend_on_the_same_steps(tmp_path):
+    """``bench --solvers --quick``: every backend on each case, the same cloth
+    within the solver tolerance, ratios to pcg from the same run."""
+    assert bench.main(["--solvers", "--quick", "--repeats", "1", "--quiet",
+                       "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "solvers.json").read_text())
+    assert (tmp_path / "solvers.md").read_text().count("\n| ") == len(data["rows"]) + 1
+    cases = {r["case"] for r in data["rows"]}
+    assert len(cases) == 2
+    for row in data["rows"]:
+        assert row["unconverged_steps"] == 0
+        assert row["solves_per_step"] >= 1
+        assert row["max_distance_from_pcg_m"] < 1e-3, row
+        assert row["ratio_to_pcg"] > 0
+        if row["backend"] != "auto":
+            assert row["solver"] == row["backend"]

@@ -75,6 +75,10 @@ RATE_WINDOW = 2.0               # s, window of the measured real-time factor and
 # Service requests queue in the middleware until the request thread takes them:
 # a deep queue, so a burst is answered (with a refusal if need be), not dropped.
 SERVICE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+# Poses wait in the middleware while the pose thread waits for the interpreter
+# (a long step holds it in compiled code): deep enough for seconds at 100 Hz.
+POSE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+SWITCH_INTERVAL = 2e-4          # s, see main()
 
 
 class ClothLodNode(Node):
@@ -119,8 +123,8 @@ class ClothLodNode(Node):
                           if self.publish_clock else None)
         for g in self.sim.grasps:
             self.create_subscription(PoseStamped, f"grasp/{g.name}/pose",
-                                     lambda msg, name=g.name: self._on_pose(name, msg), 100,
-                                     callback_group=self._poses)
+                                     lambda msg, name=g.name: self._on_pose(name, msg),
+                                     POSE_QOS, callback_group=self._poses)
             self._service(SetBool, f"grasp/{g.name}/close",
                           lambda req, res, name=g.name: self._on_close(name, req, res))
         self._service(Trigger, "cloth/reset", self._on_reset)
@@ -596,7 +600,10 @@ def _forward_library_logs(ros_logger) -> None:
 def main(args=None) -> None:
     """Entry point (``cloth_lod_node``); Ctrl-C and SIGTERM end it with code 0, a bad
     ``scene`` with one line on stderr and code 2."""
-    import sys
+    # Input threads must get the interpreter within a fraction of a millisecond
+    # while the stepping thread computes (the default 5 ms switch interval let a
+    # 100 Hz pose stream fall seconds behind on a busy step).
+    sys.setswitchinterval(SWITCH_INTERVAL)
     rclpy.init(args=args)
     node = None
     try:

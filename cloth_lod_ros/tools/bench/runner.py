@@ -296,6 +296,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--set", action="append", metavar="KEY=VALUE",
                         help="scene override for every run (repeatable)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    parser.add_argument("--solvers", action="store_true",
+                        help="compare the linear-solver backends instead (uniform L4-L8, the "
+                             "adaptive default, grasp_lift with LOD on and off; quick: two "
+                             "small cases); writes solvers.json and solvers.md")
     parser.add_argument("--from-json", metavar="BENCH_JSON",
                         help="run nothing: rewrite the CSV, plot and summary of a finished "
                              "run from its bench.json (into --out, default beside it)")
@@ -379,6 +383,16 @@ def run(args) -> int:
     started = _time.perf_counter()
     say = (lambda *a: None) if getattr(args, "quiet", False) else (
         lambda *a: print(*a, flush=True))
+    if getattr(args, "solvers", False):
+        from .backends import run_backends
+        try:
+            result = run_backends(Path(args.out), repeats=args.repeats or 3, quick=args.quick,
+                                  cpu=args.cpu, progress=say)
+        except BenchError as exc:
+            print(f"cloth-lod bench: {exc}", file=sys.stderr)
+            return 3
+        say(f"wrote {Path(args.out) / 'solvers.md'} ({result['minutes']:.1f} min)")
+        return 0
     try:
         _resolve(args)
         scene_path = find_scene_file(args.scene)
