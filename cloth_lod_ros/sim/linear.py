@@ -218,6 +218,8 @@ def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
         residual -= alpha * q
         s = precond(residual)
         delta_old, delta = delta, float(residual @ s)
+        if not delta > 0.0:       # a preconditioner that is not positive definite here
+            break
         direction = s + (delta / delta_old) * direction
         iterations += 1
     dv = dv.reshape(n, 3)

@@ -27,8 +27,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .linear import (Constraints, SolveResult, SparsePattern, filtered_pcg, project_system,
-                     solve_projected_direct)
+from .linear import (Constraints, SolveResult, SparsePattern, _block_diag, filtered_pcg,
+                     project_system, solve_projected_direct)
 from .multigrid import VCycle, block_transfers, lattice_hierarchy
 
 __all__ = ["LinearSolver", "make_solver", "METHODS", "available_methods"]
@@ -174,6 +174,17 @@ class Multigrid(LinearSolver):
                               guess=guess, tolerance=self.tolerance,
                               max_iterations=self.max_iterations, preconditioner=cycle,
                               filtered_matrix=fine)
+        if not result.converged:
+            # Never worse than the reference: finish with block-Jacobi PCG from
+            # where the multigrid iteration stopped, and rebuild next time.
+            start = result.dv if np.all(np.isfinite(result.dv)) else guess
+            finish = filtered_pcg(matrix, rhs, constraints,
+                                  self.pattern.diagonal_blocks(matrix), guess=start,
+                                  tolerance=self.tolerance,
+                                  max_iterations=self.max_iterations)
+            finish.iterations += result.iterations
+            self._cycle = None
+            return finish
         if self._cycle is not None:
             self._uses += 1
             self._last = result.iterations
@@ -187,7 +198,6 @@ class Multigrid(LinearSolver):
 
 
 def _inverse_blocks(blocks: np.ndarray) -> sp.csr_matrix:
-    from .linear import _block_diag
     return _block_diag(np.linalg.inv(blocks))
 
 
