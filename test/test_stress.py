@@ -228,3 +228,10 @@ def test_patch_grasp_under_lod_holds_the_particles_splits_make_inside_it():
     rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     np.testing.assert_allclose(sim.positions[held], centre + (before - centre) @ rot.T,
                                atol=1e-9)
+
+
+def test_set_applies_to_every_case_and_a_bad_value_is_refused(monkeypatch, capsys):
+    assert stress.build_scene(TINY, True, True, ["solver.method=direct"]).solver.method == "direct"
+    code, out = _run(monkeypatch, capsys, [TINY], ["--quick", "--lod", "off",
+                                                    "--set", "solver.method=multigrid"])
+    assert code == 0 and "1/1 runs passed" in out

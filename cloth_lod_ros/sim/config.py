@@ -549,7 +549,7 @@ def apply_overrides(data: dict, overrides: list[str] | dict) -> dict:
     """
     out = copy.deepcopy(data)
     items = overrides.items() if isinstance(overrides, dict) else (
-        _split_override(o) for o in overrides)
+        parse_override(o) for o in overrides)
     for key, value in items:
         parts = key.split(".")
         node = out
@@ -565,7 +565,8 @@ def apply_overrides(data: dict, overrides: list[str] | dict) -> dict:
     return out
 
 
-def _split_override(text: str):
+def parse_override(text: str):
+    """``"key=value"`` -> ``(key, value)``, the value parsed as YAML (bounded as scene files are)."""
     if "=" not in text:
         raise SceneError(f"override {_show(text)} must look like key=value")
     key, raw = text.split("=", 1)

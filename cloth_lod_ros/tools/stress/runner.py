@@ -49,7 +49,7 @@ from typing import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ...sim.config import load_scene
+from ...sim.config import parse_override, load_scene
 from ...sim.mesh48 import MeshError
 from ...sim import ClothSim, SimulationError
 
@@ -121,8 +121,9 @@ class RunResult:
                         substeps=self.substeps.tolist()))
 
 
-def build_scene(case: Case, lod: bool, quick: bool):
-    """The :class:`~cloth_lod_ros.sim.config.SceneConfig` of ``case`` (LOD on/off, flavour)."""
+def build_scene(case: Case, lod: bool, quick: bool, extra: list[str] | None = None):
+    """The :class:`~cloth_lod_ros.sim.config.SceneConfig` of ``case`` (LOD on/off,
+    flavour), with ``extra`` ``key=value`` overrides (e.g. a solver backend) on top."""
     variant = case.quick if quick else case.full
     overrides = dict(case.overrides)
     overrides.update(dict(variant.overrides))
@@ -131,6 +132,9 @@ def build_scene(case: Case, lod: bool, quick: bool):
     overrides["lod.enabled"] = lod
     if lod:
         overrides["lod.initial_level"] = 0
+    for text in extra or ():
+        key, value = parse_override(text)
+        overrides[key] = value
     return load_scene(case.scene, overrides)
 
 
@@ -182,7 +186,8 @@ class _Collect(logging.Handler):
         self.messages.append(record.getMessage())
 
 
-def run_case(case: Case, lod: bool, quick: bool = False) -> RunResult:
+def run_case(case: Case, lod: bool, quick: bool = False,
+             extra: list[str] | None = None) -> RunResult:
     """Run ``case`` and check every step against its bounds.
 
     Returns:
@@ -191,7 +196,7 @@ def run_case(case: Case, lod: bool, quick: bool = False) -> RunResult:
     """
     bounds = case.bounds
     result = RunResult(case=case.name, lod=lod, quick=quick)
-    sim = ClothSim(build_scene(case, lod, quick))
+    sim = ClothSim(build_scene(case, lod, quick, extra))
     h = sim.time_step
     steps = int(round(sim.scene.simulation.duration / h))
     density = sim.scene.material.density
@@ -364,12 +369,13 @@ def _check_series(result: RunResult, bounds: Bounds, fail) -> None:
 
 
 def run_cases(cases, lod_modes=(True, False), quick: bool = False,
-              progress: Callable[[RunResult], None] | None = None) -> list[RunResult]:
+              progress: Callable[[RunResult], None] | None = None,
+              extra: list[str] | None = None) -> list[RunResult]:
     """Run every case in every LOD mode, one at a time; ``progress`` sees each result."""
     results = []
     for case in cases:
         for lod in lod_modes:
-            result = run_case(case, lod, quick)
+            result = run_case(case, lod, quick, extra)
             results.append(result)
             if progress is not None:
                 progress(result)
@@ -422,6 +428,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lod", choices=("on", "off", "both"), default="both",
                         help="run with LOD on, off or both (default both)")
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON")
+    parser.add_argument("--set", action="append", metavar="KEY=VALUE",
+                        help="scene override for every case, e.g. solver.method=pcg")
 
 
 def run(args) -> int:
@@ -440,7 +448,8 @@ def run(args) -> int:
     print(format_header(), flush=True)
     start = _time.perf_counter()
     results = run_cases([by_name[n] for n in names], lod_modes, args.quick,
-                        progress=lambda r: print(format_row(r), flush=True))
+                        progress=lambda r: print(format_row(r), flush=True),
+                        extra=list(getattr(args, "set", None) or []))
     wall = _time.perf_counter() - start
     failed = [r for r in results if not r.passed]
     print(f"{len(results) - len(failed)}/{len(results)} runs passed in {wall:.1f} s wall")
