@@ -318,13 +318,12 @@ class ClothSim:
         lod_ms = 0.0
         if self.hierarchy is not None and self.step_count % self.scene.lod.check_interval == 0:
             lod_start = _time.perf_counter()
-            evaluation, evaluate_ms = self.solver.prepare(self.elements, self.state, h)
-            refines, merges = self.adapt(evaluation)
+            # The criterion needs only the hinges' angles and gradients, computed
+            # here on their own: the full force evaluation waits until the mesh
+            # is final for this step, so none is made for a topology that the
+            # criterion then changes (most adaptive steps change it).
+            refines, merges = self.adapt()
             lod_ms = 1e3 * (_time.perf_counter() - lod_start)
-            if not (refines or merges):
-                # The physics reuses this evaluation (reported in force_ms).  After
-                # a topology change it is thrown away: then it was LOD's cost.
-                lod_ms -= evaluate_ms
         for g in self.grasps:
             if g.closed:
                 g.advance(next_time, h)
@@ -435,12 +434,12 @@ class ClothSim:
     def adapt(self, evaluation=None) -> tuple[int, int]:
         """Evaluate the LOD criterion on the current state and refine/simplify now.
 
-        ``step()`` calls this every ``lod.check_interval`` steps, passing the
-        step's own force evaluation (its hinge angles and gradients are what
-        the criterion needs).  Returns ``(splits, merges)`` performed.
+        ``step()`` calls this every ``lod.check_interval`` steps, before the
+        step's force evaluation.  ``evaluation``: a force evaluation of the
+        current state whose hinge angles and gradients can be reused; without
+        one, only those are computed (the same numbers).  Returns ``(splits,
+        merges)`` performed.
         """
-        if evaluation is None:
-            evaluation, _ = self.solver.prepare(self.elements, self.state, self.time_step)
         h, time = self.hierarchy, self.state.time
         held_nodes = self._held_nodes()
         detail_points = np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
