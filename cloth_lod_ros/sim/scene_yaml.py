@@ -1,0 +1,133 @@
+"""Reading scene YAML within bounds: scene files are input from anywhere (design §10).
+
+A scene file or ``--set`` value is parsed by a safe loader that refuses, while
+parsing, what would make loading unbounded: more than :data:`MAX_SCENE_BYTES`,
+aliases (``*name``: a few lines of nested aliases expand to gigabytes), nesting
+deeper than :data:`MAX_NESTING`, integer literals too long to be any field's
+value.  It reads ``1e-5`` as a float, as YAML 1.2 does.  Every failure is a
+:class:`SceneError` on one line; values are quoted shortened.
+"""
+
+from __future__ import annotations
+
+import re
+import reprlib
+from typing import Any
+
+import yaml
+
+__all__ = ["SceneError", "MAX_SCENE_BYTES", "MAX_NESTING", "HugeInteger", "load_yaml",
+           "shorten"]
+
+#: Largest scene file (bytes); also the longest ``--set`` value.
+MAX_SCENE_BYTES = 1_000_000
+#: Deepest nesting of mappings and lists (a scene needs 5: grasps[i].waypoints[j][k]).
+MAX_NESTING = 16
+# An integer scalar longer than this is refused by field name without being
+# converted (Python refuses to convert more than 4300 digits anyway).
+_MAX_INTEGER_CHARS = 100
+
+
+class SceneError(ValueError):
+    """A scene file or override is malformed; the message names the field."""
+
+
+_REPR = reprlib.Repr()
+_REPR.maxstring = _REPR.maxother = 60
+_REPR.maxlong = 40
+_REPR.maxlist = _REPR.maxtuple = 6
+_REPR.maxdict = 4
+_REPR.maxlevel = 3
+
+
+def shorten(value: Any) -> str:
+    """``repr`` for error messages, shortened: never the whole of a big value."""
+    return _REPR.repr(value)
+
+
+class HugeInteger:
+    """An integer scalar too long to be any field's value; kept (unconverted)
+    so that the field it was given for is named in the refusal."""
+
+    def __init__(self, text: str):
+        self.digits = len(text.lstrip("+-"))
+
+    def __repr__(self) -> str:
+        return f"<an integer of {self.digits} digits>"
+
+
+class _SceneLoader(yaml.SafeLoader):
+    """Safe YAML loader for scene files.
+
+    It reads ``1e-5`` as a float (PyYAML follows YAML 1.1, where a float needs a
+    dot, ``1.0e-5``; YAML 1.2 and every user's expectation accept ``1e-5``), and
+    it refuses, while parsing, what would make loading unbounded: aliases
+    (``*name``; a few lines of nested aliases expand to gigabytes) and nesting
+    deeper than :data:`MAX_NESTING`.
+    """
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise SceneError(f"line {event.start_mark.line + 1}: YAML aliases "
+                             f"(*{event.anchor[:40]}) are not allowed in scene files; "
+                             "write the values out")
+        self._depth += 1
+        try:
+            if self._depth > MAX_NESTING and not self.check_event(yaml.ScalarEvent):
+                mark = self.peek_event().start_mark
+                raise SceneError(f"line {mark.line + 1}: nested more than {MAX_NESTING} "
+                                 "levels deep (a scene needs at most 5)")
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_yaml_int(self, node):
+        if len(node.value) > _MAX_INTEGER_CHARS:
+            return HugeInteger(node.value)
+        return super().construct_yaml_int(node)
+
+
+_SceneLoader.add_constructor("tag:yaml.org,2002:int", _SceneLoader.construct_yaml_int)
+
+
+_SceneLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                 |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                 |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                 |[-+]?\.(?:inf|Inf|INF)
+                 |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."))
+
+
+def load_yaml(text: str | bytes, where: str):
+    """Parse scene YAML; every failure is a :class:`SceneError` starting ``where: ``."""
+    if len(text) > MAX_SCENE_BYTES:
+        raise SceneError(f"{where}: larger than {MAX_SCENE_BYTES} bytes, the most a "
+                         "scene may have")
+    try:
+        return yaml.load(text, Loader=_SceneLoader)  # noqa: S506 - safe loader subclass
+    except SceneError as exc:
+        raise SceneError(f"{where}: {exc}") from None
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{where}: not valid YAML: {_yaml_problem(exc)}") from None
+    except RecursionError:
+        raise SceneError(f"{where}: nested too deeply") from None
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """PyYAML's error on one line: problem, where, and what it was parsing."""
+    def at(mark):
+        return f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+    if isinstance(exc, yaml.MarkedYAMLError) and exc.problem:
+        text = exc.problem + at(exc.problem_mark)
+        if exc.context:
+            text += f" ({exc.context}{at(exc.context_mark)})"
+    else:
+        text = " ".join(str(exc).split())
+    return text if len(text) <= 300 else text[:297] + "..."
