@@ -168,7 +168,8 @@ class Evaluation:
             column ``3·v_j + b``), or ``None``.
         hinge_blocks: ``(h, 4, 3, 4, 3)`` same layout for hinges, or ``None``.
         hinge_angle: ``(h,)`` θ in rad; ``hinge_gradient``: ``(h, 4, 3)`` ∂θ/∂x
-            in 1/m (the LOD criterion reuses both).
+            in 1/m (what the LOD criterion needs; it computes them alone with
+            :func:`hinge_angles`, the same numbers).
     """
 
     force: np.ndarray

@@ -81,7 +81,11 @@ def _summary(sim: ClothSim, wall: float) -> str:
         f"{np.mean([s.assembly_ms for s in st]):.2f}, solve "
         f"{np.mean([s.solve_ms for s in st]):.2f}); real-time factor "
         f"{sim.time / wall:.2f}",
-        f"  solver {sim.scene.solver.method}: CG iterations mean {it.mean():.1f}, "
+        f"  solver {sim.scene.solver.method}"
+        + (f" (ran: {'+'.join(sorted({s.solver for s in st}))})"
+           if sim.scene.solver.method == "auto" else "")
+        + f", {np.mean([s.solves for s in st]):.1f} solves per step: CG iterations mean "
+        f"{it.mean():.1f}, "
         f"max {it.max()}; worst residual {max(s.residual for s in st):.2e}; "
         f"{unconverged} unconverged step(s)",
         _lod_line(sim),
