@@ -92,7 +92,10 @@ class SuperLu(LinearSolver):
     name = "superlu"
 
     def solve(self, matrix, rhs, constraints, guess):
-        return solve_projected_direct(matrix, rhs, constraints)
+        try:
+            return solve_projected_direct(matrix, rhs, constraints)
+        except RuntimeError as exc:         # SuperLU: "Factor is exactly singular"
+            raise np.linalg.LinAlgError(f"LU factorisation failed: {exc}") from exc
 
 
 class LdlDirect(LinearSolver):
@@ -126,10 +129,14 @@ class LdlDirect(LinearSolver):
         order, indices, indptr = self._upper
         upper = sp.csc_matrix((projected.data.ravel()[order], indices, indptr),
                               shape=projected.shape)
-        if self._factor is None:
-            self._factor = _qdldl.Solver(upper, upper=True)     # ordering + analysis
-        else:
-            self._factor.update(upper, upper=True)              # numbers only
+        try:
+            if self._factor is None:
+                self._factor = _qdldl.Solver(upper, upper=True)     # ordering + analysis
+            else:
+                self._factor.update(upper, upper=True)              # numbers only
+        except RuntimeError as exc:         # QDLDL: not quasi-definite (absurd inputs)
+            self._factor = None
+            raise np.linalg.LinAlgError(f"LDLT factorisation failed: {exc}") from exc
         y = self._factor.solve(b.ravel()).reshape(-1, 3)
         dv = z + constraints.filter(y)
         rel = self._residual(matrix, rhs, constraints, dv)
