@@ -544,11 +544,29 @@ def test_fuzzed_poses_parameters_and_service_calls_never_stop_the_node(observer,
         st.builds(lambda v: ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY,
                                            double_array_value=v),
                   st.lists(number, max_size=4)))
-    parameter = st.tuples(st.just("parameter"), st.sampled_from(names), value)
+    double = st.builds(lambda v: ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
+                                                 double_value=v),
+                       st.floats(-1.0, 100.0) | st.floats(1e-6, 1e-2) | number)
+    boolean = st.builds(lambda v: ParameterValue(type=ParameterType.PARAMETER_BOOL,
+                                                 bool_value=v), st.booleans())
+    typed = {"realtime": boolean, "paused": boolean, "wireframe": boolean,
+             "use_sim_time": boolean,
+             "colour_by": st.builds(lambda v: ParameterValue(
+                 type=ParameterType.PARAMETER_STRING, string_value=v),
+                 st.sampled_from(["level", "shading", "Level", ""])),
+             "workspace_min": st.builds(lambda v: ParameterValue(
+                 type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=v),
+                 st.lists(st.floats(-20.0, 0.0), min_size=3, max_size=3)),
+             "workspace_max": st.builds(lambda v: ParameterValue(
+                 type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=v),
+                 st.lists(st.floats(0.0, 20.0), min_size=3, max_size=3))}
+    # Half of the values have the parameter's type (mostly plausible), half anything.
+    parameter = st.sampled_from(names).flatmap(lambda name: st.tuples(
+        st.just("parameter"), st.just(name), typed.get(name, double) | value))
     service = st.tuples(st.just("service"), st.sampled_from(sorted(clients)[1:]),
                         st.booleans())
 
-    @settings(max_examples=30, deadline=None, derandomize=True,
+    @settings(max_examples=80, deadline=None, derandomize=True,
               suppress_health_check=list(HealthCheck))
     @given(st.lists(st.one_of(pose, pose, parameter, service), min_size=1, max_size=25))
     def batch(actions):
