@@ -123,7 +123,8 @@ def test_multigrid_iterations_do_not_grow_with_the_mesh(flat):
         assert mg.converged and jacobi.converged
         counts[level] = (mg.iterations, jacobi.iterations)
     assert counts[7][1] > 2.5 * counts[3][1]                 # block-Jacobi grows
-    assert counts[7][0] <= counts[3][0] + 6, counts          # multigrid does not
+    # Multigrid does not (level 3 has two levels only, its coarse one solved exactly).
+    assert counts[7][0] <= max(counts[3][0], counts[5][0]) + 4, counts
     assert counts[7][0] < counts[7][1] / 10, counts
 
 

@@ -54,13 +54,14 @@ def _bilinear(points: np.ndarray, spacing: float, nu: int, nv: int) -> sp.csr_ma
 
 
 def lattice_hierarchy(uv: np.ndarray, width: float, height: float, block: float,
-                      min_nodes: int = 30) -> list[sp.csr_matrix]:
+                      min_nodes: int = 100) -> list[sp.csr_matrix]:
     """Prolongations from coarse lattices down to the points ``uv``.
 
     Args:
         uv: ``(n, 2)`` rest material coordinates of the particles, m.
         width, height: the cloth, m; block: side of a level-0 square block, m.
-        min_nodes: stop at the first lattice with at most this many nodes.
+        min_nodes: stop at the first lattice with at most this many nodes (its
+            operator is factorised; one level fewer costs less than it saves).
 
     Returns:
         ``[P_0, P_1, ...]``: ``P_0`` maps the first coarse lattice to the particles
