@@ -144,6 +144,9 @@ class ClothLodNode(Node):
         self._publishes: collections.deque = collections.deque()
         self._progress: collections.deque = collections.deque()
         self._last_level = 0
+        self._last_values: dict = {}
+        self._last_message = "starting"
+        self._waiting_for_clock = False
         self.timer = None
         self._make_timer()
         self._log_start()
@@ -512,7 +515,7 @@ class ClothLodNode(Node):
                       strain_warn=self.get_parameter("strain_warn").value,
                       speed_warn=self.get_parameter("speed_warn").value,
                       real_time_factor=measured,
-                      waiting_for_clock=getattr(self, "_waiting_for_clock", False),
+                      waiting_for_clock=self._waiting_for_clock,
                       recording_failed=self._recording_status().startswith("failed"),
                       paused=self.paused)
 
@@ -555,17 +558,15 @@ class ClothLodNode(Node):
                   "rejected_poses": self._rejected_poses(),
                   "rejected_requests": self.rejected["requests"],
                   "internal_errors": self.internal_errors}
-        previous = getattr(self, "_last_values", {})
         for key in ("recent_real_time_factor", "publish_rate_hz"):
-            if previous.get(key):
-                values[key] = float(previous[key])
+            if self._last_values.get(key):
+                values[key] = float(self._last_values[key])
         if last is not None:
             for key in ("step_ms", "lod_ms", "solve_ms", "cg_iterations", "max_strain",
                         "max_speed", "kinetic_energy", "contact_count"):
                 values[key] = getattr(last, key)
-        message = getattr(self, "_last_message", "starting")
         self.diagnostics_pub.publish(standard_diagnostics(
-            f"{self.get_name()}: simulation", sim.scene.name, self._last_level, message,
+            f"{self.get_name()}: simulation", sim.scene.name, self._last_level, self._last_message,
             values, self._stamp()))
 
 
