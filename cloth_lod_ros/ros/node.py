@@ -58,14 +58,13 @@ from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from ..bag.recorder import SessionRecorder
-from ..bag.rosbag import BagError
 from ..messages.frames import FrameBuilder, standard_diagnostics
 from ..sim import ClothSim, SimulationError
 from ..sim.config import SceneError, load_scene, scene_to_dict
 from . import parameters
 from .inputs import POSE_REJECTIONS, InputQueue, PoseLimits, health, judge_pose
 from .parameters import LIVE
+from .recording import NodeRecording
 
 __all__ = ["ClothLodNode", "main"]
 
@@ -102,10 +101,12 @@ class ClothLodNode(Node):
         self.internal_errors = 0
         self.error: str | None = None
         self.paused = bool(self.get_parameter("paused").value)
-        self.recorder: SessionRecorder | None = None
-        self.record_error: str | None = None
         self._limits = self._pose_limits()
         self._build_sim()
+        self.recording = NodeRecording(self.get_namespace(),
+                                       self.get_parameter("record_compression").value,
+                                       [g.name for g in self.sim.grasps], self.get_logger(),
+                                       self.context.ok)
         self._param_scene = self.sim.scene          # what live changes are validated against
         self._sim_time = 0.0                        # read by the input threads
 
@@ -235,9 +236,8 @@ class ClothLodNode(Node):
     def _on_pose(self, name: str, msg: PoseStamped) -> None:
         self.poses_received += 1
         try:
-            recorder = self.recorder
-            if recorder is not None:
-                recorder.record_message(f"grasp/{name}/pose", serialize_message(msg))
+            if self.recording.recorder is not None:
+                self.recording.message(f"grasp/{name}/pose", serialize_message(msg))
             p, q = msg.pose.position, msg.pose.orientation
             reason, position, orientation = judge_pose(
                 msg.header.frame_id, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w],
@@ -280,16 +280,17 @@ class ClothLodNode(Node):
                             what="pause" if request.data else "resume")
 
     def _on_record(self, request, response):
-        # The recorder is swapped atomically; the stepping thread only reads it.
-        if request.data and self.recorder is None:
+        recording = self.recording
+        if request.data and recording.recorder is None:
             response.message = self._start_recording(self.get_parameter("record_path").value
-                                                     if self.record_error is None else "")
-            response.success = self.recorder is not None
+                                                     if recording.error is None else "")
+            response.success = recording.recorder is not None
         elif request.data:
-            response.success, response.message = True, f"already recording to {self.recorder.path}"
+            response.success = True
+            response.message = f"already recording to {recording.recorder.path}"
         else:
-            response.message = self._stop_recording()
-            response.success = self.record_error is None
+            response.message = recording.stop()
+            response.success = recording.error is None
         return response
 
     # -- the stepping thread -----------------------------------------------------
@@ -428,67 +429,18 @@ class ClothLodNode(Node):
 
     # -- recording -----------------------------------------------------------------
     def _record_input(self, kind: str, **payload) -> None:
-        recorder = self.recorder
-        if recorder is not None:
-            recorder.record_input(self.sim, kind, self._now_ns(), **payload)
+        self.recording.input(self.sim, kind, self._now_ns(), **payload)
 
     def _now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
     def _start_recording(self, path: str) -> str:
-        """Open a bag; on failure log it, report it in lod_stats and go on."""
-        if not path:
-            path = time.strftime("bags/cloth_lod_%Y%m%d_%H%M%S")
-        try:
-            recorder = SessionRecorder(
-                path, self.get_namespace(), self.get_parameter("record_compression").value,
-                grasp_names=[g.name for g in self.sim.grasps])
-        except BagError as exc:
-            self.record_error = str(exc)
-            self.get_logger().error(f"recording not started: {exc}")
-            return self.record_error
-        self.record_error = None
-        if self.sim.step_count:
-            self.get_logger().warning(
-                f"recording starts at step {self.sim.step_count}: `cloth-lod replay` needs a "
-                "recording from the start (record:=true, or call cloth/reset after this)")
-        params = {n: self.get_parameter(n).value
-                  for n in self.list_parameters([], 0).names}
-        recorder.start(self.sim, params, self.get_parameter("grid_resolution").value,
-                       self._now_ns())
-        self.recorder = recorder
-        self.get_logger().info(f"recording to {recorder.path}")
-        return f"recording to {recorder.path}"
-
-    def _stop_recording(self) -> str:
-        recorder, self.recorder = self.recorder, None
-        if recorder is None:
-            return "not recording"
-        recorder.close()
-        if recorder.failed:
-            self.record_error = recorder.failed
-            return f"recording failed: {recorder.failed}"
-        text = f"recording finished: {recorder.writer.message_count} messages, {recorder.path}"
-        if self.context.ok():        # no ROS logging once the context is shut down
-            self.get_logger().info(text)
-        else:
-            print(f"[cloth_lod_node] {text}", flush=True)
-        return text
-
-    def _recording_status(self) -> str:
-        recorder = self.recorder
-        if recorder is not None and recorder.failed:
-            self.record_error = recorder.failed
-        if self.record_error is not None:
-            return f"failed: {self.record_error}"
-        if recorder is None:
-            return "off"
-        dropped = recorder.dropped_frames
-        return f"on: {recorder.path}" + (f" ({dropped} frames dropped: disk behind)"
-                                         if dropped else "")
+        params = {n: self.get_parameter(n).value for n in self.list_parameters([], 0).names}
+        return self.recording.start(path, self.sim, params,
+                                    self.get_parameter("grid_resolution").value, self._now_ns())
 
     def destroy_node(self):
-        self._stop_recording()
+        self.recording.stop()
         return super().destroy_node()
 
     # -- outputs -------------------------------------------------------------------
@@ -516,7 +468,7 @@ class ClothLodNode(Node):
                       speed_warn=self.get_parameter("speed_warn").value,
                       real_time_factor=measured,
                       waiting_for_clock=self._waiting_for_clock,
-                      recording_failed=self._recording_status().startswith("failed"),
+                      recording_failed=self.recording.status().startswith("failed"),
                       paused=self.paused)
 
     def _publish(self) -> None:
@@ -526,7 +478,7 @@ class ClothLodNode(Node):
         if self.paused or self.error is not None:
             self._progress.clear()
         wall = (self._pace_now() or 0.0) - (self._pace_start or 0.0)
-        recording = self._recording_status()
+        recording = self.recording.status()
         level, message = self._health(rtf)
         self._last_level = level
         values = {"paused": str(self.paused).lower(),
@@ -545,9 +497,7 @@ class ClothLodNode(Node):
         self.grid_pub.publish(frames["cloth/grid"])
         self.stats_pub.publish(frames["cloth/lod_stats"])
         self._last_values, self._last_message = values, message
-        recorder = self.recorder
-        if recorder is not None:
-            recorder.record_frame(frames, self._now_ns())
+        self.recording.frame(frames, self._now_ns())
 
     def _publish_diagnostics(self) -> None:
         """``/diagnostics``: one status with numbers a tool can plot."""
