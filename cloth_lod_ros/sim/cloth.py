@@ -28,7 +28,7 @@ import time as _time
 
 import numpy as np
 
-from .config import SceneConfig, SceneError, load_scene
+from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
 from .contact import make_obstacle, nearest_surface
 from .forces import Elements, elastic_energies, precompute
 from .grasps import Grasp
@@ -54,7 +54,6 @@ def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
     Raises:
         SceneError: a field is unknown, not live, or the result is invalid.
     """
-    from .config import scene_from_dict, scene_to_dict
     data = scene_to_dict(scene)
     for path, value in changes.items():
         section, _, key = str(path).partition(".")
@@ -431,14 +430,12 @@ class ClothSim:
             self._adopt_hierarchy()
         return ops
 
-    def adapt(self, evaluation=None) -> tuple[int, int]:
+    def adapt(self) -> tuple[int, int]:
         """Evaluate the LOD criterion on the current state and refine/simplify now.
 
         ``step()`` calls this every ``lod.check_interval`` steps, before the
-        step's force evaluation.  ``evaluation``: a force evaluation of the
-        current state whose hinge angles and gradients can be reused; without
-        one, only those are computed (the same numbers).  Returns ``(splits,
-        merges)`` performed.
+        step's force evaluation: the criterion computes the hinges' angles and
+        gradients only.  Returns ``(splits, merges)`` performed.
         """
         h, time = self.hierarchy, self.state.time
         held_nodes = self._held_nodes()
@@ -451,8 +448,7 @@ class ClothSim:
             h, self.elements, self.vertex_ids, self.triangle_ids, self.state.positions,
             self.state.velocities, time, held_nodes, detail_points=detail_points,
             in_contact=in_contact,
-            supported=self._merge_would_sink if self.obstacles else None,
-            evaluation=evaluation)
+            supported=self._merge_would_sink if self.obstacles else None)
         if not decision.refine and not decision.merge:
             return 0, 0
         self._sync_hierarchy()

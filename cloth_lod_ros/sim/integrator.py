@@ -66,7 +66,6 @@ class ImplicitEulerSolver:
             geometry: ``(width, height, block)`` of the cloth in m, for the
                 multigrid backend's lattices.
         """
-        self.config = solver_config
         self.material = material
         self.gravity = np.asarray(gravity, dtype=float)
         self.backend = make_solver(solver_config.method, solver_config.tolerance,
@@ -97,9 +96,8 @@ class ImplicitEulerSolver:
     def prepare(self, elements: Elements, state: ClothState, h: float):
         """Forces, energies and system blocks at ``state`` (cached).
 
-        The LOD criterion reads the hinge angles and gradients from this same
-        evaluation, and a contact re-solve repeats the step from the same
-        state, so it is computed once per (topology, state).  Returns
+        A contact re-solve repeats the step from the same state (and a caller
+        may ask again), so it is computed once per (topology, state).  Returns
         ``(evaluation, milliseconds it took)``.
         """
         cached = self._prepared

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 __all__ = ["SparsePattern", "Constraints", "SolveResult", "filtered_pcg", "project_system",
-           "solve_projected_direct"]
+           "relative_residual", "solve_projected_direct", "block_diagonal_matrix"]
 
 
 class SparsePattern:
@@ -208,11 +208,11 @@ def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
         inverse_blocks = np.linalg.inv(block_diagonal)
         if projectors is not None:
             inverse_blocks = projectors @ inverse_blocks @ projectors
-        precond = _block_diag(inverse_blocks).__matmul__
+        precond = block_diagonal_matrix(inverse_blocks).__matmul__
     elif projectors is None:
         precond = preconditioner
     else:
-        projection = _block_diag(projectors)
+        projection = block_diagonal_matrix(projectors)
 
         def precond(r):
             return projection @ preconditioner(projection @ r)
@@ -261,7 +261,7 @@ def _filter_matrix(matrix, projectors: np.ndarray,
 
 
 def project_system(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constraints,
-                   pattern: SparsePattern):
+                   pattern: SparsePattern | None = None):
     """The projected system ``Â y = b̂`` of a filtered step, on the topology's pattern.
 
     ``Â = S A S + (I − S) D (I − S)`` (D: the 3 × 3 diagonal blocks of A) is SPD,
@@ -272,8 +272,10 @@ def project_system(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
     analysis stays valid for the whole topology.
 
     Args:
-        matrix: A, BSR with 3 × 3 blocks on ``pattern``.
+        matrix: A, BSR with 3 × 3 blocks (every diagonal block stored).
         rhs: ``(n, 3)`` b.  constraints: S and z.
+        pattern: A's :class:`SparsePattern` if the caller has it (saves
+            finding the block rows and diagonal blocks again).
 
     Returns:
         ``(Â as BSR, b̂ (n, 3), z (n, 3))``.
@@ -291,11 +293,16 @@ def project_system(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
         held[indices] = True
         projectors = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         projectors[indices] = filters
-        rows, cols = pattern.block_rows, matrix.indices
+        cols = matrix.indices
+        if pattern is not None:
+            rows, diagonal_block = pattern.block_rows, pattern.diagonal_block
+        else:
+            rows = np.repeat(np.arange(n), np.diff(matrix.indptr))
+            diagonal_block = np.flatnonzero(rows == cols)       # one per row, in row order
         touched = np.flatnonzero(held[rows] | held[cols])
         data[touched] = projectors[rows[touched]] @ matrix.data[touched] \
             @ projectors[cols[touched]]
-        diagonal = pattern.diagonal_block[indices]
+        diagonal = diagonal_block[indices]
         complement = np.eye(3) - filters
         data[diagonal] += complement @ matrix.data[diagonal] @ complement
         b = constraints.filter(rhs - (matrix @ z.ravel()).reshape(n, 3))
@@ -303,36 +310,29 @@ def project_system(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
     return projected, b, z
 
 
-def solve_projected_direct(matrix, rhs: np.ndarray,
-                           constraints: Constraints) -> SolveResult:
-    """Direct baseline: sparse LU of the projected system.
-
-    Writes ``Δv = z + y`` with ``y`` in the free subspace and solves
-    ``(S A S + (I − S)) y = S (b − A z)``, which is SPD and equivalent to the
-    filtered problem.  Uses SuperLU in symmetric mode (design §3).
-    """
-    n = rhs.shape[0]
-    z = constraints.start(np.zeros_like(rhs))
-    if len(constraints.indices):
-        blocks = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-        blocks[constraints.indices] = constraints.projectors
-        proj = _block_diag(blocks)
-        system = _filter_matrix(matrix, blocks, constraints).tocsr() + (
-            sp.identity(3 * n, format="csr") - proj)
-        b = (proj @ (rhs.ravel() - matrix @ z.ravel()))
-    else:
-        system, b = matrix, rhs.ravel()
-    lu = spla.splu(sp.csc_matrix(system), permc_spec="MMD_AT_PLUS_A",
-                   diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-    y = lu.solve(b).reshape(n, 3)
-    dv = z + constraints.filter(y)
-    residual = constraints.filter(rhs - (matrix @ dv.ravel()).reshape(n, 3))
+def relative_residual(matrix, rhs: np.ndarray, constraints: Constraints,
+                      dv: np.ndarray) -> float:
+    """``|S(b − A Δv)| / |S b|`` (0 if ``S b`` = 0): the measure every backend reports."""
+    residual = constraints.filter(rhs - (matrix @ dv.ravel()).reshape(-1, 3))
     norm_b = float(np.linalg.norm(constraints.filter(rhs)))
-    rel = float(np.linalg.norm(residual)) / norm_b if norm_b > 0 else 0.0
+    return float(np.linalg.norm(residual)) / norm_b if norm_b > 0 else 0.0
+
+
+def solve_projected_direct(matrix, rhs: np.ndarray, constraints: Constraints,
+                           pattern: SparsePattern | None = None) -> SolveResult:
+    """Direct baseline: SuperLU (symmetric mode) of :func:`project_system`'s
+    system, analysed anew at every call (design §3); ``Δv = z + S y``."""
+    if not (sp.isspmatrix_bsr(matrix) and matrix.blocksize == (3, 3)):
+        matrix = sp.bsr_matrix(matrix, blocksize=(3, 3))
+    projected, b, z = project_system(matrix, rhs, constraints, pattern)
+    lu = spla.splu(projected.tocsc(), permc_spec="MMD_AT_PLUS_A",
+                   diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    dv = z + constraints.filter(lu.solve(b.ravel()).reshape(-1, 3))
+    rel = relative_residual(matrix, rhs, constraints, dv)
     return SolveResult(dv=dv, iterations=0, residual=rel, converged=bool(np.isfinite(rel)))
 
 
-def _block_diag(blocks: np.ndarray) -> sp.csr_matrix:
+def block_diagonal_matrix(blocks: np.ndarray) -> sp.csr_matrix:
     """Block-diagonal CSR matrix from ``(n, 3, 3)`` blocks (no sorting needed)."""
     n = len(blocks)
     indptr = np.arange(0, 9 * n + 1, 3, dtype=np.int32)

@@ -29,7 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .linear import _block_diag
+from .linear import block_diagonal_matrix
 
 __all__ = ["lattice_hierarchy", "block_transfers", "VCycle"]
 
@@ -120,7 +120,7 @@ def _block_diagonal_inverse(matrix: sp.csr_matrix) -> sp.csr_matrix:
     diagonal = np.zeros((n, 3, 3))
     on_diagonal = rows == bsr.indices
     diagonal[rows[on_diagonal]] = bsr.data[on_diagonal]
-    return _block_diag(np.linalg.inv(diagonal))
+    return block_diagonal_matrix(np.linalg.inv(diagonal))
 
 
 class VCycle:

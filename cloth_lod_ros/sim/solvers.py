@@ -27,8 +27,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .linear import (Constraints, SolveResult, SparsePattern, _block_diag, filtered_pcg,
-                     project_system, solve_projected_direct)
+from .linear import (Constraints, SolveResult, SparsePattern, block_diagonal_matrix,
+                     filtered_pcg, project_system, relative_residual, solve_projected_direct)
 from .multigrid import VCycle, block_transfers, lattice_hierarchy
 
 __all__ = ["LinearSolver", "make_solver", "METHODS", "available_methods"]
@@ -73,10 +73,6 @@ class LinearSolver:
               guess: np.ndarray | None) -> SolveResult:
         raise NotImplementedError
 
-    def _residual(self, matrix, rhs, constraints, dv) -> float:
-        residual = constraints.filter(rhs - (matrix @ dv.ravel()).reshape(-1, 3))
-        norm_b = float(np.linalg.norm(constraints.filter(rhs)))
-        return float(np.linalg.norm(residual)) / norm_b if norm_b > 0 else 0.0
 
 
 class BlockJacobiPcg(LinearSolver):
@@ -93,7 +89,7 @@ class SuperLu(LinearSolver):
 
     def solve(self, matrix, rhs, constraints, guess):
         try:
-            return solve_projected_direct(matrix, rhs, constraints)
+            return solve_projected_direct(matrix, rhs, constraints, self.pattern)
         except RuntimeError as exc:         # SuperLU: "Factor is exactly singular"
             raise np.linalg.LinAlgError(f"LU factorisation failed: {exc}") from exc
 
@@ -139,7 +135,7 @@ class LdlDirect(LinearSolver):
             raise np.linalg.LinAlgError(f"LDLT factorisation failed: {exc}") from exc
         y = self._factor.solve(b.ravel()).reshape(-1, 3)
         dv = z + constraints.filter(y)
-        rel = self._residual(matrix, rhs, constraints, dv)
+        rel = relative_residual(matrix, rhs, constraints, dv)
         return SolveResult(dv=dv, iterations=0, residual=rel,
                            converged=bool(np.isfinite(rel) and rel <= max(self.tolerance,
                                                                           1e-8)))
@@ -205,7 +201,7 @@ class Multigrid(LinearSolver):
 
 
 def _inverse_blocks(blocks: np.ndarray) -> sp.csr_matrix:
-    return _block_diag(np.linalg.inv(blocks))
+    return block_diagonal_matrix(np.linalg.inv(blocks))
 
 
 class Auto(LinearSolver):
