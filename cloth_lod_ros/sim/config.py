@@ -468,11 +468,12 @@ def parse_override(text: str):
 
 def scenes_directory() -> Path:
     """Directory of the built-in scenes (installed share/ or the source tree)."""
-    candidates = []
+    # A source checkout first (repository root = three levels above this file):
+    # the scenes that belong to the code being run, not an older installed copy.
+    candidates = [Path(__file__).resolve().parents[2] / "config" / "scenes"]
     for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
         if prefix:
             candidates.append(Path(prefix) / "share" / "cloth_lod_ros" / "config" / "scenes")
-    candidates.append(Path(__file__).resolve().parent.parent / "config" / "scenes")
     candidates.append(Path(sys.prefix) / "share" / "cloth_lod_ros" / "config" / "scenes")
     for path in candidates:
         if path.is_dir():
