@@ -265,8 +265,8 @@ def test_criterion_reuses_the_force_evaluation_exactly():
         np.testing.assert_array_equal(a, b)
     assert fresh.deviation.max() > 0
     # The solver's cache is keyed on the state, not on the object holding it.
-    first, _ = sim.solver.prepare(sim.elements, sim.state, sim.time_step)
+    first, _ = sim.solver.evaluate(sim.elements, sim.state.positions, sim.state.velocities, sim.time_step)
     sim.state.positions[0, 2] += 0.01
-    second, _ = sim.solver.prepare(sim.elements, sim.state, sim.time_step)
+    second, _ = sim.solver.evaluate(sim.elements, sim.state.positions, sim.state.velocities, sim.time_step)
     assert second is not first
-    assert sim.solver.prepare(sim.elements, sim.state, sim.time_step)[0] is second
+    assert sim.solver.evaluate(sim.elements, sim.state.positions, sim.state.velocities, sim.time_step)[0] is second

@@ -7,8 +7,9 @@ Data, state and operators are kept apart (design §9):
 * :class:`~cloth_lod_ros.sim.state.ClothState` - positions, velocities and time;
 * :class:`~cloth_lod_ros.sim.pins.Pin`, :class:`~cloth_lod_ros.sim.grasps.Grasp`
   - inputs (material point, target path, release);
-* :class:`~cloth_lod_ros.sim.integrator.ImplicitEulerSolver` -
-  ``step(elements, masses, state, pins, h)``;
+* :class:`~cloth_lod_ros.sim.timestepping.TimeStepper` (scheme, step size,
+  contacts) over :class:`~cloth_lod_ros.sim.integrator.ImplicitStageSolver`
+  (Newton on implicit stages) - ``advance(elements, masses, state, held, H)``;
 * :class:`~cloth_lod_ros.sim.hierarchy.Hierarchy48` (mechanism) and
   :class:`~cloth_lod_ros.sim.lod.LodPolicy` (policy) - the adaptive mesh.
 
@@ -33,12 +34,13 @@ from .contact import make_obstacle, nearest_surface
 from .forces import Elements, elastic_energies, precompute
 from .grasps import Grasp
 from .hierarchy import Hierarchy48
-from .integrator import ImplicitEulerSolver, StepControl
+from .integrator import ImplicitStageSolver
 from .lod import LodPolicy
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
 from .pins import Pin
 from .state import ClothState, SimulationError, StepStats
+from .timestepping import TimeStepper
 
 __all__ = ["ClothSim", "live_update"]
 
@@ -94,7 +96,7 @@ class ClothSim:
         base = base_mesh(cloth.width, cloth.height, *cloth.base_blocks)
         origin = np.asarray(cloth.origin, dtype=float)
         axes = np.array([cloth.u_axis, cloth.v_axis], dtype=float)
-        self.solver = ImplicitEulerSolver(
+        self.solver = ImplicitStageSolver(
             scene.solver, scene.material, scene.simulation.gravity,
             geometry=(cloth.width, cloth.height, cloth.width / cloth.base_blocks[0]))
         self.time_step = scene.simulation.time_step
@@ -128,7 +130,8 @@ class ClothSim:
         # Inputs beyond pins: obstacles (contact) and grasps.  A scene without
         # obstacles never evaluates contact code.
         self.obstacles = [make_obstacle(o) for o in scene.obstacles]
-        self.step_control = StepControl(self.solver, self.obstacles, scene.contact)
+        self.stepper = TimeStepper(self.solver, scene.simulation, self.obstacles,
+                                   scene.contact)
         self.grasps = [Grasp.from_config(g) for g in scene.grasps]
         self._scripted_closed = {g.name: False for g in self.grasps}
         self.contacts = None
@@ -327,7 +330,7 @@ class ClothSim:
             if g.closed:
                 g.advance(next_time, h)
         held = self._held(next_time)
-        new_state, report, contacts, substeps = self.step_control.advance(
+        new_state, report, contacts, steps = self.stepper.advance(
             self.elements, self.masses, self.state, held, h)
         new_state.time = next_time          # not the sum of the substeps' roundings
         self.contacts = contacts
@@ -363,7 +366,9 @@ class ClothSim:
             gravity_energy=float(-np.sum(self.masses * (x @ self.solver.gravity))),
             stretch_energy=elastic["stretch"], shear_energy=elastic["shear"],
             bend_energy=elastic["bend"], max_strain=elastic["max_strain"],
-            max_speed=float(np.sqrt(np.max(np.sum(v * v, axis=1)))), substeps=substeps,
+            max_speed=float(np.sqrt(np.max(np.sum(v * v, axis=1)))),
+            substeps=steps.substeps, rejected_steps=steps.rejected,
+            smallest_step=steps.smallest, newton_iterations=report.newton_iterations,
             solves=report.solves, solver=self.solver.backend.name)
         self.stats.append(stats)
         self.step_count += 1

@@ -157,9 +157,29 @@ class GraspConfig:
 
 @dataclass(frozen=True)
 class SimulationConfig:
-    time_step: float = _spec("float", "s", ge=1e-6, le=1.0, doc="implicit Euler step h")
+    """Time integration (design §3; :mod:`~cloth_lod_ros.sim.timestepping`)."""
+
+    time_step: float = _spec("float", "s", ge=1e-6, le=1.0,
+                             doc="frame period: the largest step h and the interval at "
+                                 "which the cloth is published/recorded")
     duration: float = _spec("float", "s", ge=0, le=1e9, doc="simulated time of a run")
     gravity: tuple = _spec("vec3", "m/s^2", default=(0.0, 0.0, -9.81))
+    integrator: str = _spec("str", choices=("sdirk2", "backward_euler", "baraff_witkin"),
+                            default="sdirk2",
+                            doc="sdirk2: L-stable 2-stage SDIRK, second order; "
+                                "backward_euler: Newton-solved backward Euler; "
+                                "baraff_witkin: the paper's linearised backward Euler "
+                                "(one solve per step)")
+    newton_iterations: int = _spec("int", "", ge=1, le=50, default=1,
+                                   doc="most Newton iterations per implicit stage")
+    newton_tolerance: float = _spec("float", "m", ge=0, default=1e-5,
+                                    doc="stop Newton once a correction moves the particles "
+                                        "by at most this (RMS)")
+    error_tolerance: float = _spec("float", "m", ge=0, default=0.0,
+                                   doc="largest estimated local position error per step "
+                                       "(RMS); 0: one step per frame")
+    min_time_step: float = _spec("float", "s", ge=1e-6, le=1.0, default=1e-3,
+                                 doc="smallest step the error control may take")
 
 
 @dataclass(frozen=True)

@@ -1,15 +1,31 @@
-"""The time integrator: one implicit step with pins, contact and friction (design §3).
+"""Implicit stages: the nonlinear equations of one implicit stage, solved by
+Newton iterations with pins, contact and friction (design §3).
 
-* :class:`ImplicitEulerSolver` - one linearised backward-Euler step (BW eq. 15)
-  solved by the filtered PCG of BW §5.3 (or the direct baseline), with exact
-  pins and one-sided contacts with Coulomb friction inside the solve;
-* :class:`StepControl` - what is wrapped around that step: re-solves for
-  particles that went into an obstacle during the step, and the step-size
-  control that redoes a step in halves where the stretch grows too fast.
+Every scheme of :mod:`~cloth_lod_ros.sim.timestepping` (the paper's linearised
+backward Euler, backward Euler with Newton, the L-stable SDIRK2) is made of
+*stages* of one form: find the velocities ``V`` ``(n, 3)`` (m/s) with
 
-Data, state and operators are kept apart: the integrator's entry point is
-``step(elements, masses, state, (held, targets), h, contacts)`` and it keeps
-nothing but per-topology caches (sparsity pattern, warm start).
+    M (V − v̂) = γh · f(x̂ + γh V, V)                                 (1)
+
+for given ``x̂`` (m), ``v̂`` (m/s) and stage step ``γh`` (s); the stage's
+positions are ``X = x̂ + γh V``.  Backward Euler is one stage with
+``x̂ = x_n, v̂ = v_n, γh = h``.  :class:`ImplicitStageSolver` solves (1):
+
+* Newton: the residual ``r(V) = γh f(X, V) − M (V − v̂)`` (N·s) is linearised
+  with the kept Jacobian (:mod:`~cloth_lod_ros.sim.forces`), i.e. the system
+  matrix ``A = M − γh ∂f/∂v − γh² ∂f/∂x`` of BW eq. 15, and ``A ΔV = r`` is
+  solved by the configured backend (:mod:`~cloth_lod_ros.sim.solvers`) with
+  held particles and contacts as filtered constraints (BW §5.3);
+* the first iteration starts from a predictor (``V⁰``: the previous velocity,
+  so ``X⁰ = x̂ + γh V⁰``) and takes the full step; later ones backtrack
+  along ``ΔV`` while the filtered residual ``|S r|_{M⁻¹}`` does not decrease
+  (the kept Jacobian is Gauss–Newton, so a full step is not guaranteed to
+  improve);
+* it stops after ``max_iterations`` or once the last correction moved the
+  particles by at most ``tolerance`` (RMS over particles, m);
+* BW's own step (``linearize_at_start``) evaluates the forces at ``x̂``
+  instead and adds ``γh² K V⁰`` to the right-hand side (BW eq. 15): one
+  iteration of that is the paper's method.
 """
 
 from __future__ import annotations
@@ -19,18 +35,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .contact import find_contacts, penetrations
-from .forces import Elements, evaluate, stretch_lengths
+from .forces import Elements, evaluate
 from .linear import Constraints, SparsePattern
 from .solvers import make_solver
-from .state import ClothState
 
-__all__ = ["ImplicitEulerSolver", "SolveReport", "StepControl"]
+__all__ = ["ImplicitStageSolver", "SolveReport", "StageResult"]
 
 
 @dataclass
 class SolveReport:
-    """What the solver reports alongside the new state (times in ms)."""
+    """What the solver reports alongside the new state (times in ms).
+
+    ``iterations`` are linear-solver (CG) iterations, ``solves`` linear solves,
+    ``newton_iterations`` Newton iterations (one linearisation each) over all
+    stages; ``line_search_cuts`` how often a Newton step was shortened.
+    """
 
     iterations: int
     residual: float
@@ -41,22 +60,46 @@ class SolveReport:
     contacts: int = 0
     released: int = 0
     solves: int = 1
+    newton_iterations: int = 1
+    line_search_cuts: int = 0
+
+    @classmethod
+    def empty(cls) -> "SolveReport":
+        return cls(0, 0.0, True, 0.0, 0.0, 0.0, solves=0, newton_iterations=0)
 
     def add(self, other: "SolveReport") -> None:
-        """Fold in the work of another attempt at the same step (a rejected one,
-        a re-solve): iterations, solves and times add up."""
+        """Fold in the work of another stage or attempt at the same step (a
+        rejected one, a re-solve): work and times add up, the worst residual
+        and convergence are kept."""
         self.iterations += other.iterations
         self.solves += other.solves
         self.force_ms += other.force_ms
         self.assembly_ms += other.assembly_ms
         self.solve_ms += other.solve_ms
+        self.newton_iterations += other.newton_iterations
+        self.line_search_cuts += other.line_search_cuts
+        self.residual = max(self.residual, other.residual)
+        self.converged = self.converged and other.converged
 
 
-class ImplicitEulerSolver:
-    """One linearised backward-Euler step with filtered PCG (design §3).
+@dataclass
+class StageResult:
+    """Solution of one stage: ``velocities`` ``(n, 3)`` m/s, ``positions`` ``(n, 3)``
+    m (``x̂ + γh V``), the contacts that held at the end (``None`` without
+    obstacles) and the report."""
 
-    Keeps the sparsity pattern and the previous Δv (warm start) while the
-    topology is unchanged; call :meth:`reset_topology` after it changes.
+    positions: np.ndarray
+    velocities: np.ndarray
+    contacts: object
+    report: SolveReport
+
+
+class ImplicitStageSolver:
+    """Solves implicit stages (equation (1) of the module docstring; design §3).
+
+    Keeps the sparsity pattern and the last correction of each stage slot
+    (warm start of the iterative backends) while the topology is unchanged;
+    call :meth:`reset_topology` after it changes.
     """
 
     def __init__(self, solver_config, material, gravity, geometry=None):
@@ -72,17 +115,18 @@ class ImplicitEulerSolver:
                                    solver_config.max_iterations, geometry)
         self._pattern: SparsePattern | None = None
         self._uv: np.ndarray | None = None
-        self._previous_dv: np.ndarray | None = None
-        self._prepared = None
+        self._warm: dict = {}
+        self._evaluated = None
         self._solves = 0
+        self._previous_dv = None
 
     def reset_topology(self, elements: Elements | None = None,
                        uv: np.ndarray | None = None) -> None:
         """Forget per-topology caches; with ``elements`` (and the particles' rest
         ``uv`` ``(n, 2)`` m), build the new pattern and set up the backend now."""
         self._pattern = None
-        self._previous_dv = None
-        self._prepared = None
+        self._warm = {}
+        self._evaluated = None
         if uv is not None:
             self._uv = uv
         if elements is not None:
@@ -93,94 +137,144 @@ class ImplicitEulerSolver:
                                       [elements.triangles, elements.hinge_vertices])
         self.backend.reset_topology(self._pattern, self._uv)
 
-    def prepare(self, elements: Elements, state: ClothState, h: float):
-        """Forces, energies and system blocks at ``state`` (cached).
+    def evaluate(self, elements: Elements, x: np.ndarray, v: np.ndarray, gh: float):
+        """Forces, energies and system blocks (weights ``γh²``, ``γh``) at ``(x, v)``.
 
-        A contact re-solve repeats the step from the same state (and a caller
-        may ask again), so it is computed once per (topology, state).  Returns
-        ``(evaluation, milliseconds it took)``.
+        A contact re-solve repeats the step from the same predictor, so the
+        last evaluation is kept and reused for the same (topology, material,
+        x, v, γh).  Returns ``(evaluation, milliseconds it took)``.
         """
-        cached = self._prepared
-        if (cached is not None and cached[0] is elements and cached[1] == h
-                and cached[6] is self.material          # the node can change it live
-                and np.array_equal(cached[2], state.positions)
-                and np.array_equal(cached[3], state.velocities)):
-            return cached[4], cached[5]
+        cached = self._evaluated
+        if (cached is not None and cached[0] is elements and cached[1] == gh
+                and cached[2] is self.material          # the node can change it live
+                and np.array_equal(cached[3], x) and np.array_equal(cached[4], v)):
+            return cached[5], 0.0
         start = _time.perf_counter()
-        ev = evaluate(elements, self.material, state.positions, state.velocities,
-                      stiffness_weight=h * h, damping_weight=h)
+        ev = evaluate(elements, self.material, x, v,
+                      stiffness_weight=gh * gh, damping_weight=gh)
         ms = 1e3 * (_time.perf_counter() - start)
-        self._prepared = (elements, h, state.positions.copy(), state.velocities.copy(), ev, ms,
-                          self.material)
+        self._evaluated = (elements, gh, self.material, x.copy(), v.copy(), ev)
         return ev, ms
 
-    def step(self, elements: Elements, masses: np.ndarray, state: ClothState,
-             constraints_targets: tuple[np.ndarray, np.ndarray], h: float,
-             contacts=None, max_correction_speed: float = 0.5):
-        """Advance ``state`` by ``h`` seconds.
+    def _linearise(self, elements, masses, x_hat, v_hat, gh, velocities, at_start):
+        """Residual ``r`` ``(n, 3)`` N·s and system matrix at the iterate
+        ``velocities`` (at ``x̂`` with BW's correction when ``at_start``)."""
+        x = x_hat if at_start else x_hat + gh * velocities
+        ev, ms = self.evaluate(elements, x, velocities, gh)
+        t0 = _time.perf_counter()
+        drag = self.material.air_drag
+        force = ev.force + masses[:, None] * (self.gravity - drag * velocities)
+        if at_start:
+            # BW eq. 15: f(x̂ + γh V) ≈ f(x̂) + ∂f/∂x γh V.
+            force = force + gh * ev.stiffness_times_velocity
+        residual = gh * force - masses[:, None] * (velocities - v_hat)
+        t1 = _time.perf_counter()
+        # M − γh ∂f/∂v includes the drag term γh·c·M on the diagonal.
+        matrix = self._pattern.assemble([ev.triangle_blocks, ev.hinge_blocks],
+                                        masses * (1.0 + gh * drag))
+        t2 = _time.perf_counter()
+        return residual, matrix, ms + 1e3 * (t1 - t0), 1e3 * (t2 - t1)
+
+    def _merit(self, elements, masses, x_hat, v_hat, gh, velocities, frozen):
+        """``|S r|_{M⁻¹}`` at ``velocities`` (constrained particles left out);
+        forces only, no blocks."""
+        x = x_hat + gh * velocities
+        ev = evaluate(elements, self.material, x, velocities, with_blocks=False)
+        drag = self.material.air_drag
+        force = ev.force + masses[:, None] * (self.gravity - drag * velocities)
+        residual = gh * force - masses[:, None] * (velocities - v_hat)
+        residual[frozen] = 0.0
+        return float(np.sqrt(np.sum(residual * residual / masses[:, None])))
+
+    def solve_stage(self, elements: Elements, masses: np.ndarray, x_hat: np.ndarray,
+                    v_hat: np.ndarray, gh: float, held: tuple[np.ndarray, np.ndarray],
+                    predictor: np.ndarray, contacts=None, contact_distance=None,
+                    max_correction_speed: float = 0.5, max_iterations: int = 1,
+                    tolerance: float = 0.0, linearize_at_start: bool = False,
+                    slot: int = 0) -> StageResult:
+        """Solve one stage (module docstring, equation (1)).
 
         Args:
             elements: rest data of the current topology.
             masses: ``(n,)`` particle masses, kg.
-            state: current state (not modified).
-            constraints_targets: ``(indices (k,), targets (k, 3))``: particles
-                that must be exactly at ``targets`` (m) at the end of the step.
-            h: time step, s.
-            contacts: a :class:`~cloth_lod_ros.sim.contact.ContactSet` or None.  Each
-                contact forbids motion into the obstacle (normal velocity
-                prescribed to push out of the offset surface at most
-                ``max_correction_speed`` m/s); contacts whose force would pull
-                are released and the system solved again; friction follows.
-
-        Returns:
-            ``(new_state, SolveReport)``.
+            x_hat, v_hat: ``(n, 3)`` the stage's base positions (m) and
+                velocities (m/s).  gh: the stage step ``γh``, s.
+            held: ``(indices (k,), targets (k, 3))``: particles that must be
+                exactly at ``targets`` (m) at the end of the stage.
+            predictor: ``(n, 3)`` first iterate ``V⁰`` (m/s).
+            contacts: a :class:`~cloth_lod_ros.sim.contact.ContactSet` or None;
+                ``contact_distance`` ``(k,)``: each contact's distance from the
+                offset surface measured at ``x̂`` (m).  A contact prescribes
+                the normal velocity that lands its particle on the offset
+                surface at the end of the stage (a penetrating one is pushed
+                out at most ``max_correction_speed`` m/s); contacts whose force
+                would pull are released; Coulomb friction follows.
+            max_iterations, tolerance: Newton budget and stopping test (the
+                RMS displacement of the last correction, m; 0: use the budget).
+            linearize_at_start: BW's linearisation at ``x̂`` (first iteration).
+            slot: which warm start to use (one per stage of a scheme).
         """
-        mat = self.material
-        x, v = state.positions, state.velocities
         if self._pattern is None:
             self._new_pattern(elements)
         solves_before = self._solves
-        ev, evaluate_ms = self.prepare(elements, state, h)
-        t0 = _time.perf_counter() - 1e-3 * evaluate_ms     # force_ms includes the evaluation
-        drag = mat.air_drag
-        force = ev.force + masses[:, None] * (self.gravity - drag * v)
-        rhs = h * (force + h * ev.stiffness_times_velocity)
-        t1 = _time.perf_counter()
-        # M − h ∂f/∂v includes the drag term h·c·M on the diagonal.
-        matrix = self._pattern.assemble([ev.triangle_blocks, ev.hinge_blocks],
-                                        masses * (1.0 + h * drag))
-        t2 = _time.perf_counter()
-
-        held, targets = constraints_targets
-        # Velocity that lands a held particle on its target: x + h v_new = target.
-        target_velocity = (targets - x[held]) / h
-        pinned = Constraints(indices=held, projectors=np.zeros((len(held), 3, 3)),
-                             prescribed=target_velocity - v[held])
+        held_idx, targets = held
+        velocities = predictor.copy()
+        # Held particles start on their end-of-stage velocity, so every Newton
+        # correction leaves them exactly there (and a line search cannot move them).
+        velocities[held_idx] = (targets - x_hat[held_idx]) / gh
+        pinned = Constraints(indices=held_idx, projectors=np.zeros((len(held_idx), 3, 3)),
+                             prescribed=np.zeros((len(held_idx), 3)))
+        frozen = held_idx if contacts is None else np.concatenate([held_idx, contacts.indices])
+        report = SolveReport.empty()
+        merit = None
         released = 0
-        if contacts is not None and len(contacts):
-            result, contacts, released = self._solve_with_contacts(
-                matrix, rhs, pinned, contacts, masses, v, h, max_correction_speed)
-        else:
-            result = self._solve(matrix, rhs, pinned)
-        t3 = _time.perf_counter()
-        new_v = v + result.dv
-        new_x = x + h * new_v
-        if contacts is not None and len(contacts):
-            # Inelastic contact: the normal velocity that moved a particle onto
-            # the offset surface (landing or push-out) is a position correction,
-            # not motion to keep; storing it would bounce it off next step.
-            n_c = contacts.normals
-            vn = np.einsum("kd,kd->k", new_v[contacts.indices], n_c)
-            new_v[contacts.indices] -= vn[:, None] * n_c
-        # Held particles: exactly on target (the velocity above agrees to rounding).
-        new_x[held] = targets
-        new_v[held] = target_velocity
-        self._keep_warm_start(result.dv)
-        report = SolveReport(result.iterations, result.residual, result.converged,
-                             1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2),
-                             len(contacts) if contacts is not None else 0, released,
-                             solves=self._solves - solves_before)
-        return ClothState(new_x, new_v, state.time + h), report
+        warm = self._warm.get(slot)
+        for iteration in range(max_iterations):
+            residual, matrix, force_ms, assembly_ms = self._linearise(
+                elements, masses, x_hat, v_hat, gh, velocities,
+                linearize_at_start and iteration == 0)
+            t0 = _time.perf_counter()
+            self._previous_dv = warm if iteration == 0 else None
+            if contacts is not None and len(contacts):
+                result, contacts, n_released = self._solve_with_contacts(
+                    matrix, residual, pinned, contacts, masses, velocities, gh,
+                    max_correction_speed, contact_distance)
+                released += n_released
+                if n_released:
+                    frozen = np.concatenate([held_idx, contacts.indices])
+                    contact_distance = self._contact_distance
+            else:
+                result = self._solve(matrix, residual, pinned)
+            solve_ms = 1e3 * (_time.perf_counter() - t0)
+            if iteration == 0 and np.all(np.isfinite(result.dv)):
+                warm = result.dv
+            dv = result.dv
+            step = 1.0
+            if iteration > 0:
+                # Backtracking on the filtered residual (Gauss–Newton Jacobian).
+                if merit is None:
+                    merit = self._merit(elements, masses, x_hat, v_hat, gh, velocities, frozen)
+                for _ in range(4):
+                    trial = self._merit(elements, masses, x_hat, v_hat, gh,
+                                        velocities + step * dv, frozen)
+                    if trial < merit or not np.isfinite(trial):
+                        break
+                    step *= 0.5
+                    report.line_search_cuts += 1
+                merit = trial
+            velocities = velocities + step * dv
+            stage_report = SolveReport(result.iterations, result.residual, result.converged,
+                                       force_ms, assembly_ms, solve_ms, solves=0,
+                                       newton_iterations=1)
+            report.add(stage_report)
+            moved = gh * step * float(np.sqrt(np.mean(np.sum(dv * dv, axis=1))))
+            if tolerance > 0.0 and moved <= tolerance:
+                break
+        self._warm[slot] = warm
+        report.solves = self._solves - solves_before
+        report.contacts = len(contacts) if contacts is not None else 0
+        report.released = released
+        return StageResult(x_hat + gh * velocities, velocities, contacts, report)
 
     def _keep_warm_start(self, dv: np.ndarray) -> None:
         """Start the next CG solve from ``dv`` (``(n, 3)`` m/s), unless it is not
@@ -191,8 +285,14 @@ class ImplicitEulerSolver:
         self._solves += 1
         return self.backend.solve(matrix, rhs, constraints, self._previous_dv)
 
-    def _solve_with_contacts(self, matrix, rhs, pinned, contacts, masses, v, h, max_speed):
-        """Solve with pins plus one-sided contacts and Coulomb friction (BW §5.3, §6).
+    def _solve_with_contacts(self, matrix, rhs, pinned, contacts, masses, v, h, max_speed,
+                             distance):
+        """Solve ``A Δv = rhs`` with pins plus one-sided contacts and Coulomb
+        friction (BW §5.3, §6), ``v`` ``(n, 3)`` being the current iterate (m/s),
+        ``h`` the stage step (s) and ``distance`` ``(k,)`` each contact's
+        distance from the offset surface at the stage's base positions (m).
+        The contacts left after releases and their distances are kept in
+        ``self._contact_distance``.
 
         1. Every contact is held: its normal velocity lands it on the offset
            surface (a penetrating one is pushed out at most ``max_speed``) and,
@@ -215,7 +315,7 @@ class ImplicitEulerSolver:
         rounds = 6          # a slip front moves one row of contacts per round
         for attempt in range(rounds):
             normals = contacts.normals
-            target_vn = np.minimum(-contacts.distance / h, max_speed)
+            target_vn = np.minimum(-distance / h, max_speed)
             current = v[contacts.indices]
             sliding = (contacts.friction <= 0.0) | slip
             projectors = np.zeros((len(contacts), 3, 3))
@@ -241,6 +341,7 @@ class ImplicitEulerSolver:
             if pulling.any() and attempt == 0:
                 released += int(pulling.sum())
                 contacts = contacts.subset(~pulling)
+                distance = distance[~pulling]
                 slip = slip[~pulling]
                 friction_impulse = friction_impulse[~pulling]
                 if not len(contacts):
@@ -261,6 +362,7 @@ class ImplicitEulerSolver:
             friction_impulse[new_slip] = (limit[new_slip] / magnitude[new_slip])[:, None] \
                 * tangential[new_slip]
         result.iterations = iterations
+        self._contact_distance = distance
         return result, contacts, released
 
 
@@ -268,97 +370,3 @@ def _merge_constraints(pinned: Constraints, indices, projectors, prescribed) -> 
     return Constraints(indices=np.concatenate([pinned.indices, indices]),
                        projectors=np.concatenate([pinned.projectors, projectors]),
                        prescribed=np.concatenate([pinned.prescribed, prescribed]))
-
-
-class StepControl:
-    """Contact re-solves and step-size control around one integrator step.
-
-    Step-size control (BW §5: the step is cut where the stretch changes too
-    much in one step): one linearised backward-Euler step cannot see the
-    second-order stretch of motion *across* an unstretched edge (its tangent
-    stiffness there is zero), so a part of the cloth that is stopped or turned
-    abruptly while its neighbours move on (a fast impact, a sharp jerk of a
-    grasp) comes out of the step stretched far beyond what the material does
-    and with energy it never had (a 5 m/s impact at 1/60 s: 58 % strain and
-    14x the energy; at 1/240 s: 4 %, no gain).  A step in which any
-    triangle's stretch ``|w|`` grows by more than :attr:`max_strain_growth`
-    (or that is not finite) is therefore redone as two half steps, nested up to
-    :attr:`max_substep_depth` times; held particles move along the straight
-    line to their end-of-step targets.  Ordinary motion stays below the limit
-    (the built-in scenes: at most 0.08 per step) and is not affected; the one
-    step of theirs it splits is ``table_drape`` with LOD off, where the cloth
-    leaving the table edge used to be stretched by 133 % and thrown back.
-
-    Args:
-        solver: the integrator (:class:`ImplicitEulerSolver`).
-        obstacles: the scene's obstacles (empty: no contact code runs).
-        contact: the scene's contact settings (``thickness`` m,
-            ``max_correction_speed`` m/s).
-    """
-
-    max_strain_growth = 0.1     # largest |w| increase of a triangle in one (sub)step
-    max_substep_depth = 3       # at most 2**3 = 8 substeps per step
-
-    def __init__(self, solver: "ImplicitEulerSolver", obstacles: list, contact):
-        self.solver = solver
-        self.obstacles = obstacles
-        self.contact = contact
-
-    def advance(self, elements: Elements, masses: np.ndarray, state: ClothState,
-                held: tuple[np.ndarray, np.ndarray], h: float, depth: int = 0) -> tuple:
-        """Advance ``state`` by ``h`` s with the held particles ending on ``held``'s
-        targets; a step whose stretch grows too fast (see the class docstring)
-        is redone as two halves.  Returns ``(state, report, contacts, substeps)``."""
-        new_state, report, contacts = self._solve_step(elements, masses, state, held, h)
-        if depth >= self.max_substep_depth or self._acceptable(elements, state, new_state):
-            return new_state, report, contacts, 1
-        indices, targets = held
-        halfway = (indices, 0.5 * (state.positions[indices] + targets))
-        middle, first, _, n_first = self.advance(elements, masses, state, halfway, 0.5 * h, depth + 1)
-        end, second, contacts, n_second = self.advance(elements, masses, middle, held, 0.5 * h, depth + 1)
-        # The report covers all the work of the step, the rejected attempt included.
-        second.add(first)
-        second.add(report)
-        second.residual = max(first.residual, second.residual)
-        second.converged = first.converged and second.converged
-        second.released += first.released
-        return end, second, contacts, n_first + n_second
-
-    def _acceptable(self, elements: Elements, start: ClothState, end: ClothState) -> bool:
-        """Finite, and no triangle's stretch grew by more than ``max_strain_growth``."""
-        if not (np.all(np.isfinite(end.positions)) and np.all(np.isfinite(end.velocities))):
-            return False
-        growth = (stretch_lengths(elements, end.positions)
-                  - stretch_lengths(elements, start.positions))
-        return not len(growth) or float(growth.max()) <= self.max_strain_growth
-
-    def _solve_step(self, elements: Elements, masses: np.ndarray, state: ClothState,
-                    held: tuple[np.ndarray, np.ndarray], h: float) -> tuple:
-        """One linearised backward-Euler step of ``h`` s from ``state`` with contacts.
-
-        Returns ``(new_state, report, contacts)``.
-        """
-        contacts = None
-        thickness = self.contact.thickness
-        if self.obstacles:
-            contacts = find_contacts(self.obstacles, state.positions, thickness,
-                                     exclude=held[0], velocities=state.velocities, h=h)
-        new_state, report = self.solver.step(
-            elements, masses, state, held, h, contacts,
-            self.contact.max_correction_speed)
-        for _ in range(2 if self.obstacles else 0):
-            # A particle that the start-of-step test missed (accelerated into an
-            # obstacle, or released and pushed in) gets a contact and the step is
-            # solved again.
-            missed = penetrations(self.obstacles, state.positions, new_state.positions,
-                                  thickness, exclude=held[0])
-            if not len(missed):
-                break
-            contacts = contacts.union(missed)
-            new_state, retry = self.solver.step(
-                elements, masses, state, held, h, contacts,
-                self.contact.max_correction_speed)
-            retry.add(report)              # the first attempt's work counts too
-            report = retry
-        return new_state, report, contacts
-

@@ -40,12 +40,16 @@ class StepStats:
     mesh the step simulated (after this step's refines and merges);
     ``step_ms`` includes ``lod_ms`` (criterion, operations and the refresh of
     compact arrays) and the physics (``force_ms + assembly_ms + solve_ms``).
-    ``substeps`` is how many linearised solves the step was split into (1 unless
-    its stretch grew too fast, see :class:`~cloth_lod_ros.sim.integrator.StepControl`); with
-    more than one, the solver figures add up over all of them (the rejected
-    attempts included).  ``solves`` counts every linear solve of the step
-    (friction rounds, contact re-solves, substeps and rejected attempts), all
-    timed in ``solve_ms``; ``solver`` names the backend that ran
+    A step advances one frame (``simulation.time_step``): ``substeps`` is how
+    many integrator steps covered it (1 with a fixed step unless its stretch
+    grew too fast; more under error control, see
+    :class:`~cloth_lod_ros.sim.timestepping.TimeStepper`), ``rejected_steps``
+    how many attempts were redone smaller and ``smallest_step`` (s) the
+    smallest accepted one; the solver figures add up over all of them (the
+    rejected attempts included).  ``newton_iterations`` counts linearisations
+    (over stages and substeps), ``solves`` every linear solve of the step
+    (Newton iterations, friction rounds, contact re-solves, rejected attempts),
+    all timed in ``solve_ms``; ``solver`` names the backend that ran
     (:mod:`~cloth_lod_ros.sim.solvers`).
     """
 
@@ -76,6 +80,9 @@ class StepStats:
     substeps: int = 1
     solves: int = 1
     solver: str = ""
+    rejected_steps: int = 0
+    smallest_step: float = 0.0
+    newton_iterations: int = 1
 
     @property
     def total_energy(self) -> float:
