@@ -69,9 +69,10 @@ class SolveReport:
 
     def add(self, other: "SolveReport") -> None:
         """Fold in the work of another stage or attempt at the same step (a
-        rejected one, a re-solve): work and times add up, the worst residual
-        and convergence are kept."""
+        rejected one, a re-solve): work, releases and times add up, the worst
+        residual and convergence are kept; ``contacts`` stays this report's."""
         self.iterations += other.iterations
+        self.released += other.released
         self.solves += other.solves
         self.force_ms += other.force_ms
         self.assembly_ms += other.assembly_ms
@@ -189,7 +190,7 @@ class ImplicitStageSolver:
     def solve_stage(self, elements: Elements, masses: np.ndarray, x_hat: np.ndarray,
                     v_hat: np.ndarray, gh: float, held: tuple[np.ndarray, np.ndarray],
                     predictor: np.ndarray, contacts=None, contact_distance=None,
-                    max_correction_speed: float = 0.5, max_iterations: int = 1,
+                    max_iterations: int = 1,
                     tolerance: float = 0.0, linearize_at_start: bool = False,
                     slot: int = 0) -> StageResult:
         """Solve one stage (module docstring, equation (1)).
@@ -203,12 +204,12 @@ class ImplicitStageSolver:
                 exactly at ``targets`` (m) at the end of the stage.
             predictor: ``(n, 3)`` first iterate ``V⁰`` (m/s).
             contacts: a :class:`~cloth_lod_ros.sim.contact.ContactSet` or None;
-                ``contact_distance`` ``(k,)``: each contact's distance from the
-                offset surface measured at ``x̂`` (m).  A contact prescribes
-                the normal velocity that lands its particle on the offset
-                surface at the end of the stage (a penetrating one is pushed
-                out at most ``max_correction_speed`` m/s); contacts whose force
-                would pull are released; Coulomb friction follows.
+                ``contact_distance`` ``(k,)``: the normal distance (m) from
+                ``x̂`` each contact's particle must cover towards the obstacle
+                in this stage to end on the offset surface (negative: away
+                from it, a push-out).  A contact prescribes that normal
+                velocity; contacts whose force would pull are released;
+                Coulomb friction follows.
             max_iterations, tolerance: Newton budget and stopping test (the
                 RMS displacement of the last correction, m; 0: use the budget).
             linearize_at_start: BW's linearisation at ``x̂`` (first iteration).
@@ -238,7 +239,7 @@ class ImplicitStageSolver:
             if contacts is not None and len(contacts):
                 result, contacts, n_released = self._solve_with_contacts(
                     matrix, residual, pinned, contacts, masses, velocities, gh,
-                    max_correction_speed, contact_distance)
+                    contact_distance)
                 released += n_released
                 if n_released:
                     frozen = np.concatenate([held_idx, contacts.indices])
@@ -285,17 +286,16 @@ class ImplicitStageSolver:
         self._solves += 1
         return self.backend.solve(matrix, rhs, constraints, self._previous_dv)
 
-    def _solve_with_contacts(self, matrix, rhs, pinned, contacts, masses, v, h, max_speed,
-                             distance):
+    def _solve_with_contacts(self, matrix, rhs, pinned, contacts, masses, v, h, distance):
         """Solve ``A Δv = rhs`` with pins plus one-sided contacts and Coulomb
         friction (BW §5.3, §6), ``v`` ``(n, 3)`` being the current iterate (m/s),
-        ``h`` the stage step (s) and ``distance`` ``(k,)`` each contact's
-        distance from the offset surface at the stage's base positions (m).
+        ``h`` the stage step (s) and ``distance`` ``(k,)`` the normal distance
+        each contact's particle must cover in the stage (m).
         The contacts left after releases and their distances are kept in
         ``self._contact_distance``.
 
         1. Every contact is held: its normal velocity lands it on the offset
-           surface (a penetrating one is pushed out at most ``max_speed``) and,
+           surface (see ``distance``; a penetrating one is pushed out slowly) and,
            where the obstacle has friction, its tangential velocity is 0.
            The reaction ``R = A Δv − b`` (an impulse, N·s) is what holding
            costs; contacts whose normal reaction would pull are released and
@@ -315,7 +315,7 @@ class ImplicitStageSolver:
         rounds = 6          # a slip front moves one row of contacts per round
         for attempt in range(rounds):
             normals = contacts.normals
-            target_vn = np.minimum(-distance / h, max_speed)
+            target_vn = -distance / h
             current = v[contacts.indices]
             sliding = (contacts.friction <= 0.0) | slip
             projectors = np.zeros((len(contacts), 3, 3))

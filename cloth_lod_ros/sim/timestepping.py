@@ -81,13 +81,25 @@ class SchemeStep:
     error: np.ndarray
 
 
-def _stage_distance(contacts, x_start: np.ndarray, x_hat: np.ndarray):
-    """Each contact's offset-surface distance (m) moved from ``x_start`` (where
-    it was measured) to the stage's base positions ``x_hat`` (tangent plane)."""
+def _stage_distance(contacts, x_start: np.ndarray, x_hat: np.ndarray, elapsed: float,
+                    max_speed: float):
+    """The normal distance (m, ``(k,)``) each contact's particle must cover in
+    a stage so that it ends on the offset surface, from the stage's base
+    positions ``x_hat``: ``d̂ − e``, with ``d̂`` the distance measured at
+    ``x_start`` moved to ``x_hat`` along the normal (tangent plane) and ``e``
+    the allowed end distance: 0, or for a particle that started inside
+    (``d < 0``) as far in as pushing out at ``max_speed`` m/s for the
+    ``elapsed`` s from the step's start to the stage's end leaves it.  (The
+    base of a later stage may lie inside although the particle did not start
+    there: that is the scheme's extrapolation, not a penetration to push out
+    slowly.)"""
     if contacts is None or not len(contacts):
         return None
+    d = contacts.distance
     shift = x_hat[contacts.indices] - x_start[contacts.indices]
-    return contacts.distance + np.einsum("kd,kd->k", shift, contacts.normals)
+    d_hat = d + np.einsum("kd,kd->k", shift, contacts.normals)
+    allowed = np.where(d < 0.0, np.minimum(d + max_speed * elapsed, 0.0), 0.0)
+    return d_hat - allowed
 
 
 class Scheme:
@@ -109,11 +121,12 @@ class Scheme:
         self.newton_tolerance = newton_tolerance
         self.max_correction_speed = max_correction_speed
 
-    def _stage(self, solver, elements, masses, x_start, x_hat, v_hat, gh, held,
+    def _stage(self, solver, elements, masses, x_start, x_hat, v_hat, gh, elapsed, held,
                predictor, contacts, slot, linearize_at_start=False, iterations=None):
+        """One stage ending ``elapsed`` s after the step's start."""
         return solver.solve_stage(
             elements, masses, x_hat, v_hat, gh, held, predictor, contacts,
-            _stage_distance(contacts, x_start, x_hat), self.max_correction_speed,
+            _stage_distance(contacts, x_start, x_hat, elapsed, self.max_correction_speed),
             iterations or self.newton_iterations, self.newton_tolerance,
             linearize_at_start, slot)
 
@@ -134,7 +147,7 @@ class BackwardEuler(Scheme):
     def step(self, solver, elements, masses, state, start_targets, held, h, contacts):
         x, v = state.positions, state.velocities
         iterations = 1 if self.linearize_at_start else None
-        stage = self._stage(solver, elements, masses, x, x, v, h, held, v, contacts, 0,
+        stage = self._stage(solver, elements, masses, x, x, v, h, h, held, v, contacts, 0,
                             self.linearize_at_start, iterations)
         # Embedded estimate: backward Euler − trapezoidal rule in x.
         error = 0.5 * h * (stage.velocities - v)
@@ -161,12 +174,12 @@ class Sdirk2(Scheme):
         g = self.gamma
         indices, end_targets = held
         first_targets = start_targets + g * (end_targets - start_targets)
-        one = self._stage(solver, elements, masses, x, x, v, g * h,
+        one = self._stage(solver, elements, masses, x, x, v, g * h, g * h,
                           (indices, first_targets), v, contacts, 0)
         v1 = one.velocities
         x_hat = x + (1.0 - g) * h * v1
         v_hat = v + ((1.0 - g) / g) * (v1 - v)
-        two = self._stage(solver, elements, masses, x, x_hat, v_hat, g * h, held, v1,
+        two = self._stage(solver, elements, masses, x, x_hat, v_hat, g * h, h, held, v1,
                           contacts, 1)
         two.report.add(one.report)
         # Embedded first-order solution x_n + h V₁.
@@ -260,6 +273,7 @@ class TimeStepper:
                 steps.smallest = min(steps.smallest, h)
                 steps.largest = max(steps.largest, h)
                 current, contacts = new, step_contacts
+                total.contacts = report.contacts
                 done += h
                 h = self._proposal(h, error) if adaptive else min(2.0 * h, frame)
             else:
@@ -304,7 +318,7 @@ class TimeStepper:
         result = self.scheme.step(self.solver, elements, masses, state, start_targets,
                                   held, h, contacts)
         report = result.report
-        for _ in range(2 if self.obstacles else 0):
+        for _ in range(4 if self.obstacles else 0):
             # A particle that the start-of-step test missed (accelerated into an
             # obstacle, or released and pushed in) gets a contact and the step is
             # solved again.
