@@ -5,7 +5,7 @@ import logging
 import numpy as np
 import pytest
 
-from cloth_lod_ros.sim import integrator as integrator_module
+from cloth_lod_ros.sim import timestepping as stepping_module
 from cloth_lod_ros.sim.config import load_scene, scene_from_dict
 from cloth_lod_ros.sim.contact import make_obstacle
 from cloth_lod_ros.sim import ClothSim
@@ -107,7 +107,7 @@ def test_drop_on_disc_coarsens_where_it_lies_flat():
 def test_a_scene_without_obstacles_never_runs_contact_code(monkeypatch):
     def forbidden(*args, **kwargs):
         raise AssertionError("contact code ran in a scene without obstacles")
-    monkeypatch.setattr(integrator_module, "find_contacts", forbidden)
+    monkeypatch.setattr(stepping_module, "find_contacts", forbidden)
     sim = ClothSim(load_scene("hang_two_corners", ["cloth.level=2"]))
     for _ in range(10):
         assert sim.step().contact_count == 0

@@ -117,11 +117,12 @@ def test_lod_run_conserves_mass_and_holds_pins_exactly():
 
 
 def test_settled_drape_stops_changing_topology():
-    """Hysteresis: once the cloth hangs still, splits and merges stop."""
+    """Hysteresis: once the cloth hangs still, splits and merges stop.  (The
+    swing's energy decays as exp(−1.5 t) by air drag; it is quiet after ~7 s.)"""
     cfg = load_scene("hang_two_corners", ["cloth.level=5", "material.air_drag=1.5"])
     sim = ClothSim(cfg)
     ops = []
-    for _ in range(int(8.0 / sim.time_step)):
+    for _ in range(int(10.0 / sim.time_step)):
         s = sim.step()
         ops.append(s.refines + s.merges)
     ops = np.array(ops)

@@ -99,8 +99,12 @@ class FrameBuilder:
         Besides the last step's :class:`~cloth_lod_ros.sim.StepStats` it holds
         ``step_count`` (steps since start or reset), running ``total_refines``
         and ``total_merges``, and ``recent_step_ms``/``recent_lod_ms``/
-        ``recent_solve_ms``/``recent_cg_iterations``: every step since the
-        previous message, space-separated, so analysis sees each step.
+        ``recent_solve_ms``/``recent_cg_iterations``/``recent_substeps``/
+        ``recent_smallest_step_s``/``recent_newton_iterations``: every step
+        since the previous message, space-separated, so analysis sees each
+        step; ``integrator`` and ``error_tolerance_m`` name the time stepping
+        (a step advances one frame, ``simulation.time_step``, in ``substeps``
+        integrator steps, the smallest ``smallest_step`` s long).
         """
         recent = [s for s in sim.stats if s.step_index >= self._next_step]
         self._next_step = sim.step_count
@@ -118,7 +122,14 @@ class FrameBuilder:
                    "recent_step_ms": " ".join(f"{s.step_ms:.4f}" for s in recent),
                    "recent_lod_ms": " ".join(f"{s.lod_ms:.4f}" for s in recent),
                    "recent_solve_ms": " ".join(f"{s.solve_ms:.4f}" for s in recent),
-                   "recent_cg_iterations": " ".join(str(s.cg_iterations) for s in recent)}
+                   "recent_cg_iterations": " ".join(str(s.cg_iterations) for s in recent),
+                   "integrator": sim.scene.simulation.integrator,
+                   "error_tolerance_m": repr(float(sim.scene.simulation.error_tolerance)),
+                   "recent_substeps": " ".join(str(s.substeps) for s in recent),
+                   "recent_smallest_step_s": " ".join(f"{s.smallest_step:.6g}"
+                                                      for s in recent),
+                   "recent_newton_iterations": " ".join(str(s.newton_iterations)
+                                                        for s in recent)}
         entries.update(values)
         if last is not None:
             for name, value in last.as_dict().items():

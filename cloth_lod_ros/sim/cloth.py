@@ -136,6 +136,7 @@ class ClothSim:
         self._scripted_closed = {g.name: False for g in self.grasps}
         self.contacts = None
         self._contacts_version = -1
+        self._step_operations: list | None = None   # the LOD operations of the step running
 
     def _adopt_hierarchy(self) -> None:
         """Refresh the compact arrays after the hierarchy's topology changed."""
@@ -301,14 +302,31 @@ class ClothSim:
                 1e30 m away).  The cloth's state is left at the previous step;
                 no other exception escapes a step.
         """
+        before = self.state.copy()
+        self._step_operations = []
         try:
             return self._step()
         except SimulationError:
+            self._roll_back(before)
             raise
         except (np.linalg.LinAlgError, ArithmeticError, ValueError) as exc:
-            self.solver.reset_topology()
-            raise SimulationError(f"step from t = {self.state.time:.4f} s failed "
+            self._roll_back(before)
+            raise SimulationError(f"step from t = {before.time:.4f} s failed "
                                   f"({type(exc).__name__}: {exc}); step refused") from exc
+        finally:
+            self._step_operations = None
+
+    def _roll_back(self, before: ClothState) -> None:
+        """Undo a refused step: the mesh operations its LOD pass made (their
+        inverses, in reverse order) and the state, so the cloth is exactly as
+        it was before the step."""
+        if self._step_operations:
+            for op in reversed(self._step_operations):
+                self.hierarchy.apply(op.inverse(), before.time)
+            self._step_operations = []
+            self._adopt_hierarchy()
+        self.state = before
+        self.solver.reset_topology()
 
     def _step(self) -> StepStats:
         h = self.time_step
@@ -457,7 +475,8 @@ class ClothSim:
         if not decision.refine and not decision.merge:
             return 0, 0
         self._sync_hierarchy()
-        splits, merges = LodPolicy.apply(h, decision, time)
+        splits, merges = LodPolicy.apply(h, decision, time,
+                                         log=self._step_operations)
         if splits or merges:
             if self.obstacles and splits:
                 self._lift_new_particles()

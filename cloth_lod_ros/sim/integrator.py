@@ -176,9 +176,12 @@ class ImplicitStageSolver:
         t2 = _time.perf_counter()
         return residual, matrix, ms + 1e3 * (t1 - t0), 1e3 * (t2 - t1)
 
-    def _merit(self, elements, masses, x_hat, v_hat, gh, velocities, frozen):
-        """``|S r|_{M⁻¹}`` at ``velocities`` (constrained particles left out);
-        forces only, no blocks."""
+    def residual_norm(self, elements: Elements, masses: np.ndarray, x_hat: np.ndarray,
+                      v_hat: np.ndarray, gh: float, velocities: np.ndarray,
+                      frozen: np.ndarray) -> float:
+        """``|S r|_{M⁻¹}`` (N·s/√kg = m/s·√kg) of the stage equations at
+        ``velocities`` ``(n, 3)`` m/s, the particles ``frozen`` (held, in
+        contact) left out: the line search's merit.  Forces only, no blocks."""
         x = x_hat + gh * velocities
         ev = evaluate(elements, self.material, x, velocities, with_blocks=False)
         drag = self.material.air_drag
@@ -254,9 +257,9 @@ class ImplicitStageSolver:
             if iteration > 0:
                 # Backtracking on the filtered residual (Gauss–Newton Jacobian).
                 if merit is None:
-                    merit = self._merit(elements, masses, x_hat, v_hat, gh, velocities, frozen)
+                    merit = self.residual_norm(elements, masses, x_hat, v_hat, gh, velocities, frozen)
                 for _ in range(4):
-                    trial = self._merit(elements, masses, x_hat, v_hat, gh,
+                    trial = self.residual_norm(elements, masses, x_hat, v_hat, gh,
                                         velocities + step * dv, frozen)
                     if trial < merit or not np.isfinite(trial):
                         break

@@ -183,16 +183,21 @@ class LodPolicy:
         return triangle_ids[want & (levels < cfg.detail_level)]
 
     @staticmethod
-    def apply(hierarchy: Hierarchy48, decision: LodDecision, time: float) -> tuple[int, int]:
+    def apply(hierarchy: Hierarchy48, decision: LodDecision, time: float,
+              log: list | None = None) -> tuple[int, int]:
         """Carry out a decision; returns ``(splits, merges)`` performed.
 
         Refinements go first (forced splits may make a planned merge invalid,
         which is then skipped); merges only touch all-leaf diamonds, which
-        keeps the mesh conforming.
+        keeps the mesh conforming.  With ``log``, every operation performed is
+        appended to it in order (undo: apply their inverses in reverse).
         """
         splits = 0
         for t in decision.refine:
-            splits += len(hierarchy.refine(int(t), time))
+            ops = hierarchy.refine(int(t), time)
+            splits += len(ops)
+            if log is not None:
+                log.extend(ops)
         merges = 0
         for edge in decision.merge:
             m = hierarchy.midpoint.get(edge)
@@ -202,6 +207,8 @@ class LodPolicy:
             if hierarchy.tri_active[hierarchy.children[parents]].all():
                 hierarchy.apply(Merge(edge), time)
                 merges += 1
+                if log is not None:
+                    log.append(Merge(edge))
         return splits, merges
 
 
