@@ -87,12 +87,14 @@ class SolveReport:
 class StageResult:
     """Solution of one stage: ``velocities`` ``(n, 3)`` m/s, ``positions`` ``(n, 3)``
     m (``x̂ + γh V``), the contacts that held at the end (``None`` without
-    obstacles) and the report."""
+    obstacles), the report and the impulse ``(n, 3)`` N·s the contacts
+    applied in the stage (``None`` without contacts)."""
 
     positions: np.ndarray
     velocities: np.ndarray
     contacts: object
     report: SolveReport
+    contact_impulse: np.ndarray | None = None
 
 
 class ImplicitStageSolver:
@@ -226,10 +228,19 @@ class ImplicitStageSolver:
         # Held particles start on their end-of-stage velocity, so every Newton
         # correction leaves them exactly there (and a line search cannot move them).
         velocities[held_idx] = (targets - x_hat[held_idx]) / gh
+        if contacts is not None and len(contacts):
+            # Contacts too start on the normal velocity that lands them on the
+            # offset surface: a predictor that runs into the obstacle would
+            # evaluate the forces on a cloth stretched over the penetration.
+            normals = contacts.normals
+            rows = contacts.indices
+            along = np.einsum("kd,kd->k", velocities[rows], normals)
+            velocities[rows] += (-contact_distance / gh - along)[:, None] * normals
         pinned = Constraints(indices=held_idx, projectors=np.zeros((len(held_idx), 3, 3)),
                              prescribed=np.zeros((len(held_idx), 3)))
         frozen = held_idx if contacts is None else np.concatenate([held_idx, contacts.indices])
         report = SolveReport.empty()
+        impulse = None
         merit = None
         released = 0
         warm = self._warm.get(slot)
@@ -267,6 +278,12 @@ class ImplicitStageSolver:
                     report.line_search_cuts += 1
                 merit = trial
             velocities = velocities + step * dv
+            if contacts is not None and len(contacts):
+                # The contact impulses (N·s, friction included) of this
+                # iteration's linear model: A Δv − r on the contact rows.
+                impulse = np.zeros_like(velocities)
+                rows = contacts.indices
+                impulse[rows] = ((matrix @ dv.ravel()).reshape(-1, 3) - residual)[rows]
             stage_report = SolveReport(result.iterations, result.residual, result.converged,
                                        force_ms, assembly_ms, solve_ms, solves=0,
                                        newton_iterations=1)
@@ -278,7 +295,7 @@ class ImplicitStageSolver:
         report.solves = self._solves - solves_before
         report.contacts = len(contacts) if contacts is not None else 0
         report.released = released
-        return StageResult(x_hat + gh * velocities, velocities, contacts, report)
+        return StageResult(x_hat + gh * velocities, velocities, contacts, report, impulse)
 
     def _keep_warm_start(self, dv: np.ndarray) -> None:
         """Start the next CG solve from ``dv`` (``(n, 3)`` m/s), unless it is not

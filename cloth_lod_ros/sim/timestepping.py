@@ -178,7 +178,13 @@ class Sdirk2(Scheme):
                           (indices, first_targets), v, contacts, 0)
         v1 = one.velocities
         x_hat = x + (1.0 - g) * h * v1
-        v_hat = v + ((1.0 - g) / g) * (v1 - v)
+        # M⁻¹f(Y₁) = (V₁ − v_n)/(γh) less the contact impulses: an impact is
+        # not a smooth force, and extrapolating it by (1 − γ)/γ = 2.4 would
+        # throw the particle off the surface in stage 2.
+        change = v1 - v
+        if one.contact_impulse is not None:
+            change = change - one.contact_impulse / masses[:, None]
+        v_hat = v + ((1.0 - g) / g) * change
         two = self._stage(solver, elements, masses, x, x_hat, v_hat, g * h, h, held, v1,
                           contacts, 1)
         two.report.add(one.report)

@@ -131,7 +131,7 @@ def build_scene(case: Case, lod: bool, quick: bool, extra: list[str] | None = No
     overrides["simulation.duration"] = variant.duration
     overrides["lod.enabled"] = lod
     if lod:
-        overrides["lod.initial_level"] = 0
+        overrides.setdefault("lod.initial_level", 0)     # unless the case starts finer
     for text in extra or ():
         key, value = parse_override(text)
         overrides[key] = value
