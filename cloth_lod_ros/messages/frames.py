@@ -124,7 +124,7 @@ class FrameBuilder:
                    "recent_solve_ms": " ".join(f"{s.solve_ms:.4f}" for s in recent),
                    "recent_cg_iterations": " ".join(str(s.cg_iterations) for s in recent),
                    "integrator": sim.scene.simulation.integrator,
-                   "error_tolerance_m": repr(float(sim.scene.simulation.error_tolerance)),
+                   "error_tolerance_m": repr(float(sim.stepper.tolerance)),
                    "recent_substeps": " ".join(str(s.substeps) for s in recent),
                    "recent_smallest_step_s": " ".join(f"{s.smallest_step:.6g}"
                                                       for s in recent),

@@ -175,9 +175,11 @@ class SimulationConfig:
     newton_tolerance: float = _spec("float", "m", ge=0, default=1e-5,
                                     doc="stop Newton once a correction moves the particles "
                                         "by at most this (RMS)")
-    error_tolerance: float = _spec("float", "m", ge=0, default=0.0,
-                                   doc="largest estimated local position error per step "
-                                       "(RMS); 0: one step per frame")
+    error_tolerance: float | None = _spec(
+        "float?", "m", ge=0, le=1.0, default=None,
+        doc="largest estimated local position error per step (mass-weighted RMS); "
+            "0: one step per frame; unset: 0.001 (0 with baraff_witkin, the paper's "
+            "fixed step)")
     min_time_step: float = _spec("float", "s", ge=1e-6, le=1.0, default=1e-3,
                                  doc="smallest step the error control may take")
 

@@ -65,7 +65,7 @@ from .integrator import ImplicitStageSolver, SolveReport
 from .state import ClothState
 
 __all__ = ["SCHEMES", "Scheme", "BaraffWitkin", "BackwardEuler", "Sdirk2",
-           "TimeStepper", "FrameSteps"]
+           "TimeStepper", "FrameSteps", "DEFAULT_ERROR_TOLERANCE", "effective_tolerance"]
 
 
 @dataclass
@@ -195,6 +195,18 @@ class Sdirk2(Scheme):
 
 SCHEMES = {cls.name: cls for cls in (BaraffWitkin, BackwardEuler, Sdirk2)}
 
+#: ``simulation.error_tolerance`` when the scene leaves it unset, m.
+DEFAULT_ERROR_TOLERANCE = 1e-3
+
+
+def effective_tolerance(simulation) -> float:
+    """The error tolerance (m) a ``simulation`` section asks for: its own, or
+    when unset :data:`DEFAULT_ERROR_TOLERANCE` - except for the paper's
+    configuration, whose step is fixed (one linearised step per frame)."""
+    if simulation.error_tolerance is not None:
+        return simulation.error_tolerance
+    return 0.0 if simulation.integrator == BaraffWitkin.name else DEFAULT_ERROR_TOLERANCE
+
 
 @dataclass
 class FrameSteps:
@@ -240,7 +252,7 @@ class TimeStepper:
         self.scheme = SCHEMES[simulation.integrator](
             simulation.newton_iterations, simulation.newton_tolerance,
             self.contact.max_correction_speed)
-        self.tolerance = simulation.error_tolerance
+        self.tolerance = effective_tolerance(simulation)
 
     def advance(self, elements: Elements, masses: np.ndarray, state: ClothState,
                 held: tuple[np.ndarray, np.ndarray], frame: float):
@@ -314,7 +326,7 @@ class TimeStepper:
         contacts found for the step (near or touching a surface, the LOD keeps
         detail there; the solve may have released some), ``error``
         being the estimated local position error in m (mass-weighted RMS over
-        the particles that are not held)."""
+        the particles, held and contact ones counting as zero)."""
         contacts = None
         thickness = self.contact.thickness
         indices, targets = held
@@ -350,6 +362,10 @@ class TimeStepper:
         positions[indices] = targets
         error = result.error
         error[indices] = 0.0
+        if held_contacts is not None and len(held_contacts):
+            # A contact's normal motion is set by its constraint, and an
+            # impact's velocity jump is not a smooth error to resolve in time.
+            error[held_contacts.indices] = 0.0
         weights = np.ones(len(masses)) if masses.sum() <= 0 else masses
         rms = float(np.sqrt(np.sum(weights * np.sum(error * error, axis=1)) / weights.sum()))
         return ClothState(positions, velocities, state.time + h), report, contacts, rms
