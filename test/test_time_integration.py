@@ -13,6 +13,7 @@ import scipy.sparse.linalg as spla
 from cloth_lod_ros.sim import ClothSim
 from cloth_lod_ros.sim.config import SceneError, load_scene, scene_from_dict
 from cloth_lod_ros.sim.forces import evaluate
+from cloth_lod_ros.sim.linear import SparsePattern
 from cloth_lod_ros.sim.timestepping import SCHEMES
 
 
@@ -126,8 +127,8 @@ def test_newton_iterations_reduce_the_residual_of_the_implicit_equations():
 
 
 def test_the_paper_configuration_is_bw_equation_15():
-    """``baraff_witkin``: Δv = (M − h ∂f/∂v − h² ∂f/∂x)⁻¹ h (f₀ + h ∂f/∂x v₀)
-    with held particles filtered, one solve per step (BW §5)."""
+    """``baraff_witkin``: one solve per step (BW §5) of
+    Δv = (M − h ∂f/∂v − h² ∂f/∂x)⁻¹ h (f₀ + h ∂f/∂x v₀), held particles filtered."""
     sim, x, v, held = stage_problem()
     h = sim.time_step
     mat = sim.scene.material
@@ -136,7 +137,6 @@ def test_the_paper_configuration_is_bw_equation_15():
     force = ev.force + m[:, None] * (np.array(sim.scene.simulation.gravity)
                                      - mat.air_drag * v)
     rhs = h * (force + h * ev.stiffness_times_velocity)
-    from cloth_lod_ros.sim.linear import SparsePattern
     pattern = SparsePattern(sim.mesh.vertex_count,
                             [sim.elements.triangles, sim.elements.hinge_vertices])
     matrix = pattern.assemble([ev.triangle_blocks, ev.hinge_blocks], m * (1 + h * mat.air_drag))

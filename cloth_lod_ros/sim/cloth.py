@@ -76,11 +76,14 @@ class ClothSim:
     overrides).  Arrays returned by the properties are the live state: copy
     them if you keep them across steps.
 
-    Each step: the LOD criterion and its splits and merges (LOD on), the
-    grasps' script and speed-limited targets, then the integrator
-    (:class:`~cloth_lod_ros.sim.integrator.ImplicitEulerSolver`) wrapped in
-    contact re-solves and the step-size control
-    (:class:`~cloth_lod_ros.sim.integrator.StepControl`).
+    Each step advances one frame (``simulation.time_step``): the LOD criterion
+    and its splits and merges (LOD on), the grasps' script and speed-limited
+    targets, then the time stepper
+    (:class:`~cloth_lod_ros.sim.timestepping.TimeStepper`: the scheme's
+    implicit stages, solved by
+    :class:`~cloth_lod_ros.sim.integrator.ImplicitStageSolver`, contact
+    re-solves and the error-controlled step size).  A step that fails is
+    refused whole: its mesh operations are undone and the state is kept.
     """
 
     def __init__(self, scene: SceneConfig, keep_stats: int | None = None):

@@ -268,7 +268,8 @@ class ImplicitStageSolver:
             if iteration > 0:
                 # Backtracking on the filtered residual (Gauss–Newton Jacobian).
                 if merit is None:
-                    merit = self.residual_norm(elements, masses, x_hat, v_hat, gh, velocities, frozen)
+                    merit = self.residual_norm(elements, masses, x_hat, v_hat, gh,
+                                               velocities, frozen)
                 for _ in range(4):
                     trial = self.residual_norm(elements, masses, x_hat, v_hat, gh,
                                         velocities + step * dv, frozen)
