@@ -229,8 +229,12 @@ CASES: tuple[Case, ...] = (
         # control's 0.1 per step, and the linearised step misses that much
         # second-order stretch: measured +6 % (LOD on) and +8 % (off) over the
         # initial energy for one or two steps (0 % at h/4).  Before the
-        # step-size control it was 12x, with 58 % strain.
-        bounds=Bounds(max_strain=_STRAIN, energy_peak=1.15),
+        # step-size control it was 12x, with 58 % strain.  The free edges whip
+        # round the sphere: with the second-order integrator's error-controlled
+        # steps a corner peaks at 2.03x the speed the cloth's whole energy
+        # would give one particle (12.1 m/s, quick flavour) while the energy
+        # falls (3.58 -> 3.28 J).
+        bounds=Bounds(max_strain=_STRAIN, energy_peak=1.15, speed_factor=2.5),
         events=(Event(0.0, "velocity", ((0.0, 0.0, -5.0),)),),
         floor=-0.25,            # the scene's floor plane
     ),

@@ -79,6 +79,8 @@ class RunResult:
     converged: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     topology_ops: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     substeps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    rejected: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    smallest_step: np.ndarray = field(default_factory=lambda: np.zeros(0))
     deepest_level: int = 0
     initial_energy: float = 0.0
     budget: float = 0.0
@@ -112,6 +114,8 @@ class RunResult:
             max_ops_per_second=self.max_ops_per_second, max_turnover=self.max_turnover,
             split_steps=int(np.sum(self.substeps > 1)),
             max_substeps=int(self.substeps.max()) if len(self.substeps) else 0,
+            rejected_steps=int(np.sum(self.rejected)),
+            smallest_step=stat(self.smallest_step, np.min),
             deepest_level=self.deepest_level,
             triangles_final=self.triangles_final, wall_seconds=self.wall_seconds,
             series=dict(time=self.time.tolist(), max_strain=self.max_strain.tolist(),
@@ -220,7 +224,7 @@ def run_case(case: Case, lod: bool, quick: bool = False,
     catch_up = dict(case.catch_up)
 
     series = {k: [] for k in ("time", "strain", "speed", "energy", "cg", "conv", "ops",
-                              "substeps", "particles")}
+                              "substeps", "rejected", "smallest", "particles")}
     deepest = 0
     collector = _Collect()
     sim_log = logging.getLogger("cloth_lod_ros")
@@ -241,7 +245,8 @@ def run_case(case: Case, lod: bool, quick: bool = False,
             for key, value in (("time", t), ("strain", s.max_strain), ("speed", s.max_speed),
                                ("energy", s.total_energy - offset), ("cg", s.cg_iterations),
                                ("conv", s.converged), ("ops", ops),
-                               ("substeps", s.substeps),
+                               ("substeps", s.substeps), ("rejected", s.rejected_steps),
+                               ("smallest", s.smallest_step),
                                ("particles", s.vertex_count)):
                 series[key].append(value)
             deepest = max(deepest, int(np.flatnonzero(s.triangles_per_level).max()))
@@ -278,6 +283,8 @@ def run_case(case: Case, lod: bool, quick: bool = False,
     result.converged = np.array(series["conv"], dtype=bool)
     result.topology_ops = np.array(series["ops"], dtype=int)
     result.substeps = np.array(series["substeps"], dtype=int)
+    result.rejected = np.array(series["rejected"], dtype=int)
+    result.smallest_step = np.array(series["smallest"], dtype=float)
     result.deepest_level = deepest
     result.triangles_final = int(sim.mesh.triangle_count)
     result.warnings = collector.messages
@@ -384,7 +391,7 @@ def run_cases(cases, lod_modes=(True, False), quick: bool = False,
 
 # -- report -----------------------------------------------------------------------
 
-_COLUMNS = (("case", 21, "<"), ("LOD", 3, "<"), ("steps", 5, ">"), ("cut", 4, ">"),
+_COLUMNS = (("case", 21, "<"), ("LOD", 3, "<"), ("steps", 5, ">"), ("cut/rej", 7, ">"),
             ("level", 5, ">"), ("strain", 6, ">"), ("speed", 5, ">"),
             ("E init/max/final [J]", 20, ">"), ("CG mean/max", 11, ">"),
             ("ops total/max/s", 15, ">"), ("wall s", 6, ">"), ("result", 0, "<"))
@@ -405,7 +412,8 @@ def format_row(result: RunResult) -> str:
     s = result.summary()
     energy = f"{s['energy_initial']:.3g}/{s['energy_max']:.3g}/{s['energy_final']:.3g}"
     verdict = "pass" if result.passed else "FAIL " + "; ".join(result.failures)
-    return _row([result.case, "on" if result.lod else "off", result.steps, s["split_steps"],
+    return _row([result.case, "on" if result.lod else "off", result.steps,
+                 f"{s['split_steps']}/{s['rejected_steps']}",
                  s["deepest_level"], f"{s['max_strain']:.4f}", f"{s['max_speed']:.2f}", energy,
                  f"{s['cg_mean']:.0f}/{s['cg_max']:.0f}",
                  f"{s['topology_ops']}/{s['max_ops_per_second']:.0f}",
@@ -443,7 +451,8 @@ def run(args) -> int:
         return 2
     lod_modes = {"on": (True,), "off": (False,), "both": (True, False)}[args.lod]
     print(f"stress suite ({'quick' if args.quick else 'full'}): energy E_rel above the lowest "
-          "reachable height; cut = steps redone in substeps (step-size control); level = "
+          "reachable height; cut/rej = frames covered by several steps / steps rejected "
+          "(error or stretch-growth control); level = "
           "deepest reached; ops = splits + merges, max per s after start-up")
     print(format_header(), flush=True)
     start = _time.perf_counter()
