@@ -101,6 +101,10 @@ class PinConfig:
                              doc="[[t, x, y, z], ...] target path, linear between points")
     release_time: float | None = _spec("float?", "s", ge=0, default=None,
                                        doc="simulation time at which the pin lets go")
+    radius: float = _spec("float", "m", ge=0, default=0.0,
+                          doc="0: hold the one particle nearest uv (a point load, whose "
+                              "sag and strain grow with refinement); > 0: hold every "
+                              "particle within this (u, v) distance as a rigid patch")
 
 
 @dataclass(frozen=True)
@@ -415,6 +419,12 @@ def scene_from_dict(data: Any) -> SceneConfig:
         if not (0.0 <= u <= cloth.width and 0.0 <= v <= cloth.height):
             raise SceneError(f"field 'pins[{i}].uv' = {pin.uv} lies outside the "
                              f"{cloth.width} x {cloth.height} m cloth")
+        for j, other in enumerate(scene.pins[:i]):
+            reach = pin.radius + other.radius
+            if reach > 0 and math.dist(pin.uv, other.uv) <= reach:
+                raise SceneError(f"field 'pins[{i}].radius': its patch overlaps that of "
+                                 f"pins[{j}] (centres {math.dist(pin.uv, other.uv):.4g} m "
+                                 f"apart, radii {other.radius} + {pin.radius} m)")
     return scene
 
 
