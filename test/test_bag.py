@@ -352,6 +352,10 @@ def test_node_session_with_inputs_replays_identically(observer, scene_file, tmp_
         proc.wait(timeout=30)
         assert node.call(SetBool, "grasp/other/close", SetBool.Request(data=False)).success
         assert _set_parameter(node, "lod.refine_threshold", 0.004).results[0].successful
+        wind = SetParameters.Request(parameters=[Parameter(name="air.wind", value=ParameterValue(
+            type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=[0.0, 3.0, 0.0]))])
+        assert node.call(SetParameters, "cloth_lod_node/set_parameters",
+                         wind).results[0].successful
         node.spin_for(0.5)
         assert node.call(Trigger, "cloth/reset", Trigger.Request()).success
         node.spin_for(0.5)

@@ -146,6 +146,7 @@ def _scene(level=3, lod=None, grasps=(), pins=(), gravity=(0, 0, -9.81), obstacl
         "cloth": {"width": 1.0, "height": 1.0, "base_blocks": [4, 4], "level": level,
                   "origin": list(origin)},
         "material": {"air_drag": 0.0},
+        "air": {"density": 0.0},        # no air: the impacts stay as fast as stated
         "pins": [dict(p) for p in pins], "grasps": [dict(g) for g in grasps],
         "obstacles": [dict(o) for o in obstacles],
         "simulation": {"time_step": 1 / 60, "duration": 1.0, "gravity": list(gravity)},

@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
 from .contact import make_obstacle, nearest_surface
-from .forces import Elements, elastic_energies, precompute
+from .forces import Elements, air_power, elastic_energies, precompute
 from .grasps import Grasp
 from .hierarchy import Hierarchy48
 from .integrator import ImplicitEulerSolver, StepControl
@@ -50,8 +50,8 @@ log = logging.getLogger(__name__)
 def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
     """The scene with ``changes`` (``{"section.field": value}``) applied, validated
     as a whole; only fields a running simulation can take (material except
-    density, LOD except ``enabled`` and ``initial_level``).  Pure: ``scene`` is not
-    modified, so a caller can validate without touching a running simulator.
+    density, air, LOD except ``enabled`` and ``initial_level``).  Pure: ``scene``
+    is not modified, so a caller can validate without touching a running simulator.
 
     Raises:
         SceneError: a field is unknown, not live, or the result is invalid.
@@ -60,10 +60,10 @@ def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
     for path, value in changes.items():
         section, _, key = str(path).partition(".")
         # Density sets the particle masses, built once with the mesh.
-        if (section not in ("material", "lod") or key not in data.get(section, {})
+        if (section not in ("material", "air", "lod") or key not in data.get(section, {})
                 or path in ("material.density", "lod.enabled", "lod.initial_level")):
             raise SceneError(f"{path}: not a live parameter (material.* except density, "
-                             "lod.* except enabled and initial_level)")
+                             "air.*, lod.* except enabled and initial_level)")
         data[section][key] = value
     return scene_from_dict(data)
 
@@ -98,7 +98,8 @@ class ClothSim:
         axes = np.array([cloth.u_axis, cloth.v_axis], dtype=float)
         self.solver = ImplicitEulerSolver(
             scene.solver, scene.material, scene.simulation.gravity,
-            geometry=(cloth.width, cloth.height, cloth.width / cloth.base_blocks[0]))
+            geometry=(cloth.width, cloth.height, cloth.width / cloth.base_blocks[0]),
+            air=scene.air)
         self.time_step = scene.simulation.time_step
         self.stats: list[StepStats] = []
         self.keep_stats = keep_stats
@@ -412,7 +413,9 @@ class ClothSim:
             stretch_energy=elastic["stretch"], shear_energy=elastic["shear"],
             bend_energy=elastic["bend"], max_strain=elastic["max_strain"],
             max_speed=float(np.sqrt(np.max(np.sum(v * v, axis=1)))), substeps=substeps,
-            solves=report.solves, solver=self.solver.backend.name)
+            solves=report.solves, solver=self.solver.backend.name,
+            air_power=air_power(self.elements, self.scene.air, self.scene.material.air_drag,
+                                self.masses, x, v))
         self.stats.append(stats)
         self.step_count += 1
         if self.keep_stats is not None and len(self.stats) > 2 * self.keep_stats:
@@ -424,9 +427,9 @@ class ClothSim:
 
         Args:
             changes: ``{"section.field": value}``, e.g.
-                ``{"lod.refine_threshold": 0.002, "material.bend_stiffness": 1e-4}``.
-                Only material (not density) and LOD thresholds take effect on a
-                running simulation (the mesh, masses, pins and obstacles are
+                ``{"lod.refine_threshold": 0.002, "air.wind": [2, 0, 0]}``.
+                Only material (not density), air and LOD thresholds take effect
+                on a running simulation (the mesh, masses, pins and obstacles are
                 built once).
 
         Raises:
@@ -436,6 +439,7 @@ class ClothSim:
         scene = live_update(self.scene, changes)
         self.scene = scene
         self.solver.material = scene.material
+        self.solver.air = scene.air
         if self.lod_policy is not None:
             self.lod_policy.config = scene.lod
             self.lod_policy.bend_stiffness = scene.material.bend_stiffness

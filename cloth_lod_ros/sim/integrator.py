@@ -59,14 +59,17 @@ class ImplicitEulerSolver:
     topology is unchanged; call :meth:`reset_topology` after it changes.
     """
 
-    def __init__(self, solver_config, material, gravity, geometry=None):
+    def __init__(self, solver_config, material, gravity, geometry=None, air=None):
         """Args:
             solver_config: the scene's ``solver`` section (method, tolerance, ...).
             material: the scene's material.  gravity: ``(3,)`` m/s².
             geometry: ``(width, height, block)`` of the cloth in m, for the
                 multigrid backend's lattices.
+            air: the scene's ``air`` section (face drag, wind) or None; passed
+                to :func:`~cloth_lod_ros.sim.forces.evaluate`.
         """
         self.material = material
+        self.air = air
         self.gravity = np.asarray(gravity, dtype=float)
         self.backend = make_solver(solver_config.method, solver_config.tolerance,
                                    solver_config.max_iterations, geometry)
@@ -102,16 +105,16 @@ class ImplicitEulerSolver:
         """
         cached = self._prepared
         if (cached is not None and cached[0] is elements and cached[1] == h
-                and cached[6] is self.material          # the node can change it live
+                and cached[6] is self.material and cached[7] is self.air   # live changes
                 and np.array_equal(cached[2], state.positions)
                 and np.array_equal(cached[3], state.velocities)):
             return cached[4], cached[5]
         start = _time.perf_counter()
         ev = evaluate(elements, self.material, state.positions, state.velocities,
-                      stiffness_weight=h * h, damping_weight=h)
+                      stiffness_weight=h * h, damping_weight=h, air=self.air)
         ms = 1e3 * (_time.perf_counter() - start)
         self._prepared = (elements, h, state.positions.copy(), state.velocities.copy(), ev, ms,
-                          self.material)
+                          self.material, self.air)
         return ev, ms
 
     def step(self, elements: Elements, masses: np.ndarray, state: ClothState,

@@ -46,7 +46,10 @@ class StepStats:
     attempts included).  ``solves`` counts every linear solve of the step
     (friction rounds, contact re-solves, substeps and rejected attempts), all
     timed in ``solve_ms``; ``solver`` names the backend that ran
-    (:mod:`~cloth_lod_ros.sim.solvers`).
+    (:mod:`~cloth_lod_ros.sim.solvers`).  ``air_power`` (W) is the power of the
+    air on the cloth at the end of the step (face drag relative to the wind plus
+    the isotropic ``material.air_drag``; :func:`~cloth_lod_ros.sim.forces.air_power`):
+    never positive in still air, where ``−air_power`` is what the air dissipates.
     """
 
     step_index: int
@@ -76,6 +79,7 @@ class StepStats:
     substeps: int = 1
     solves: int = 1
     solver: str = ""
+    air_power: float = 0.0
 
     @property
     def total_energy(self) -> float:
