@@ -22,6 +22,7 @@ def scene(level=3, obstacles=(), grasps=(), origin=(0, 0, 1.0), u_axis=(1, 0, 0)
         "cloth": {"width": 1.0, "height": 1.0, "base_blocks": [4, 4], "level": level,
                   "origin": list(origin), "u_axis": list(u_axis), "v_axis": list(v_axis)},
         "material": mat,
+        "air": {"density": 0.0},        # no air: test_air.py tests it
         "obstacles": [dict(o) for o in obstacles],
         "contact": {"thickness": THICKNESS},
         "grasps": [dict(g) for g in grasps],

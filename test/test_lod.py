@@ -22,6 +22,7 @@ def lod_scene(max_level=4, initial_level=0, gravity=(0, 0, -9.81), pins=(), **lo
         "name": "lod_test",
         "cloth": {"width": 1.0, "height": 1.0, "base_blocks": [4, 4], "level": max_level},
         "material": {"air_drag": 0.0},
+        "air": {"density": 0.0},        # no air: test_air.py tests it
         "pins": [dict(p) for p in pins],
         "simulation": {"time_step": 1 / 60, "duration": 1.0, "gravity": list(gravity)},
         "solver": {"tolerance": 1e-9, "max_iterations": 5000},

@@ -236,6 +236,25 @@ def test_invalid_parameters_are_refused_with_a_reason(running):
     assert node.proc.poll() is None
 
 
+def test_wind_set_from_another_process_blows_the_cloth(running):
+    """air.wind is live (a double array): the hanging cloth, swinging about
+    y = 1 m, is blown back to y ~ 0 within half a second by -8 m/s along y."""
+    node = running()
+    node.spin_until(lambda: node.stats and float(node.stat("sim_time_s")) > 1.0, 20.0)
+    assert node.grid_point(GRID // 2, 0)[1] > 0.6             # the free edge's middle
+    wind = [Parameter(name="air.wind", value=ParameterValue(
+        type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=[0.0, -8.0, 0.0]))]
+    result = node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
+                       SetParametersAtomically.Request(parameters=wind)).result
+    assert result.successful, result.reason
+    assert node.spin_until(lambda: node.grid_point(GRID // 2, 0)[1] < 0.3, 20.0)
+    short = [Parameter(name="air.wind", value=ParameterValue(
+        type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=[1.0, 2.0]))]
+    result = node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
+                       SetParametersAtomically.Request(parameters=short)).result
+    assert not result.successful and "air.wind" in result.reason
+
+
 def test_a_flood_of_bad_poses_is_rejected_and_the_node_keeps_running(running):
     node = running()
     proc = driver("""

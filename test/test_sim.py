@@ -16,6 +16,7 @@ def scene(level=2, pins=(), gravity=(0, 0, -9.81), h=1 / 60, duration=1.0, **mat
         "name": "test",
         "cloth": {"width": 1.0, "height": 1.0, "base_blocks": [4, 4], "level": level},
         "material": mat,
+        "air": {"density": 0.0},        # no air: test_air.py tests it
         "pins": [dict(p) for p in pins],
         "simulation": {"time_step": h, "duration": duration, "gravity": list(gravity)},
         "solver": {"tolerance": 1e-8, "max_iterations": 5000},
@@ -227,14 +228,19 @@ def test_absurd_inputs_fail_as_a_simulation_error_with_the_state_kept(overrides,
     sim = ClothSim.from_scene("hang_two_corners", ["cloth.level=3", *overrides])
     if target is not None:
         sim.set_pin_target("top_left", target)
+    grid = np.array([[u, v] for u in np.linspace(0, 1, 5) for v in np.linspace(0, 1, 5)])
     for _ in range(5):
-        before = sim.state.copy()
+        time, version, before = sim.time, sim.hierarchy.version, sim.sample(grid)
         try:
             sim.step()
         except SimulationError as exc:
             assert "refused" in str(exc)
-            np.testing.assert_array_equal(sim.positions, before.positions)
-            assert sim.time == before.time
+            # The same cloth; the LOD phase before the solve may have split it
+            # (the face rule puts new particles on it), so compare by material point.
+            if sim.hierarchy.version == version:
+                np.testing.assert_array_equal(sim.sample(grid), before)
+            np.testing.assert_allclose(sim.sample(grid), before, rtol=1e-9)
+            assert sim.time == time
             break
         assert np.all(np.isfinite(sim.positions))
 

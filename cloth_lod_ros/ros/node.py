@@ -190,7 +190,7 @@ class ClothLodNode(Node):
                           tuple(self.get_parameter("workspace_max").value))
 
     def _build_sim(self) -> None:
-        overrides = {path: self.get_parameter(name).value
+        overrides = {path: parameters.scene_value(self.get_parameter(name).value)
                      for name, (path, *_) in LIVE.items()}
         if self.get_parameter("time_step").value > 0:
             overrides["simulation.time_step"] = self.get_parameter("time_step").value
@@ -435,7 +435,8 @@ class ClothLodNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _start_recording(self, path: str) -> str:
-        params = {n: self.get_parameter(n).value for n in self.list_parameters([], 0).names}
+        params = {n: parameters.scene_value(self.get_parameter(n).value)    # JSON: no arrays
+                  for n in self.list_parameters([], 0).names}
         return self.recording.start(path, self.sim, params,
                                     self.get_parameter("grid_resolution").value, self._now_ns())
 

@@ -8,6 +8,8 @@ once and applied by the stepping thread before its next step.
 
 from __future__ import annotations
 
+import array
+
 import numpy as np
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
@@ -17,9 +19,10 @@ from ..sim.cloth import live_update
 from ..sim.config import SceneConfig, SceneError
 
 __all__ = ["LIVE", "COLOUR_BY", "declare_parameters", "declare_scene_parameters",
-           "validate"]
+           "validate", "scene_value"]
 
-# Live-tunable scene parameters: name -> (scene path, unit, low, high).
+# Live-tunable scene parameters: name -> (scene path, unit, low, high); low and
+# high None: a vector of 3 (m/s for the wind), validated by the scene.
 LIVE = {
     "lod.refine_threshold": ("lod.refine_threshold", "m", 1e-6, 1.0),
     "lod.coarsen_threshold": ("lod.coarsen_threshold", "m", 1e-7, 1.0),
@@ -30,6 +33,9 @@ LIVE = {
     "material.shear_stiffness": ("material.shear_stiffness", "N/m", 0.0, 1e7),
     "material.bend_stiffness": ("material.bend_stiffness", "N*m", 0.0, 10.0),
     "material.air_drag": ("material.air_drag", "1/s", 0.0, 100.0),
+    "air.density": ("air.density", "kg/m^3", 0.0, 1000.0),
+    "air.drag_coefficient": ("air.drag_coefficient", "", 0.0, 100.0),
+    "air.wind": ("air.wind", "m/s", None, None),
 }
 COLOUR_BY = ("level", "shading")
 
@@ -90,8 +96,18 @@ def declare_scene_parameters(node, scene: SceneConfig) -> None:
     """Declare the live scene parameters with the scene's values as defaults."""
     for name, (path, unit, low, high) in LIVE.items():
         section, key = path.split(".")
-        value = float(getattr(getattr(scene, section), key))
-        node.declare_parameter(name, value, _float_descriptor(name, unit, low, high))
+        value = getattr(getattr(scene, section), key)
+        if low is None:
+            node.declare_parameter(name, [float(c) for c in value], ParameterDescriptor(
+                description=f"{name} [{unit}] x, y, z"))
+        else:
+            node.declare_parameter(name, float(value), _float_descriptor(name, unit, low, high))
+
+
+def scene_value(value):
+    """A parameter's value as a scene field takes it: an array (rclpy gives
+    ``array.array`` for double arrays) as a list, anything else unchanged."""
+    return list(value) if isinstance(value, (array.array, list, tuple)) else value
 
 
 def validate(params, current, scene: SceneConfig):
@@ -109,7 +125,7 @@ def validate(params, current, scene: SceneConfig):
     changes = {}
     for p in params:
         if p.name in LIVE:
-            changes[LIVE[p.name][0]] = p.value
+            changes[LIVE[p.name][0]] = scene_value(p.value)
         elif p.name == "colour_by" and p.value not in COLOUR_BY:
             return SetParametersResult(successful=False, reason=(
                 f"colour_by must be one of {', '.join(COLOUR_BY)}, got {p.value!r}")), scene, {}

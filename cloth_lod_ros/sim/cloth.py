@@ -28,15 +28,17 @@ import os
 import time as _time
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
 from .contact import make_obstacle, nearest_surface
-from .forces import Elements, elastic_energies, precompute
+from .forces import Elements, air_power, elastic_energies, precompute
 from .grasps import Grasp
 from .hierarchy import Hierarchy48
 from .integrator import ImplicitStageSolver
 from .lod import LodPolicy
-from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
+from .mesh48 import (RestMesh, base_mesh, lumped_masses, refine_uniform,
+                     uniform_vertices_within)
 from .metrics import PointLocator
 from .pins import Pin
 from .state import ClothState, SimulationError, StepStats
@@ -50,8 +52,8 @@ log = logging.getLogger(__name__)
 def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
     """The scene with ``changes`` (``{"section.field": value}``) applied, validated
     as a whole; only fields a running simulation can take (material except
-    density, LOD except ``enabled`` and ``initial_level``).  Pure: ``scene`` is not
-    modified, so a caller can validate without touching a running simulator.
+    density, air, LOD except ``enabled`` and ``initial_level``).  Pure: ``scene``
+    is not modified, so a caller can validate without touching a running simulator.
 
     Raises:
         SceneError: a field is unknown, not live, or the result is invalid.
@@ -60,10 +62,10 @@ def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
     for path, value in changes.items():
         section, _, key = str(path).partition(".")
         # Density sets the particle masses, built once with the mesh.
-        if (section not in ("material", "lod") or key not in data.get(section, {})
+        if (section not in ("material", "air", "lod") or key not in data.get(section, {})
                 or path in ("material.density", "lod.enabled", "lod.initial_level")):
             raise SceneError(f"{path}: not a live parameter (material.* except density, "
-                             "lod.* except enabled and initial_level)")
+                             "air.*, lod.* except enabled and initial_level)")
         data[section][key] = value
     return scene_from_dict(data)
 
@@ -101,7 +103,8 @@ class ClothSim:
         axes = np.array([cloth.u_axis, cloth.v_axis], dtype=float)
         self.solver = ImplicitStageSolver(
             scene.solver, scene.material, scene.simulation.gravity,
-            geometry=(cloth.width, cloth.height, cloth.width / cloth.base_blocks[0]))
+            geometry=(cloth.width, cloth.height, cloth.width / cloth.base_blocks[0]),
+            air=scene.air)
         self.time_step = scene.simulation.time_step
         self.stats: list[StepStats] = []
         self.keep_stats = keep_stats
@@ -117,6 +120,7 @@ class ClothSim:
             self.hierarchy = Hierarchy48(base, origin + base.uv @ axes,
                                          scene.material.density, max_level=cloth.level)
             self.hierarchy.refine_uniform(scene.lod.initial_level)
+            self._resolve_pin_patches()
             self.lod_policy = LodPolicy(scene.lod, scene.material.bend_stiffness)
             self.state = ClothState(np.zeros((0, 3)), np.zeros((0, 3)), 0.0)
             self._adopt_hierarchy()
@@ -151,18 +155,58 @@ class ClothSim:
                                 self.state.time)
         self.solver.reset_topology(self.elements, self.mesh.uv)
         self._locator = None
+        # A holding patch (pin or grasp) holds the material inside it: particles
+        # that splits made there are held too (else a patch on a coarse mesh
+        # would hold only its first few particles and let the refined cloth
+        # between them flap).
+        x = self.state.positions
         for pin in getattr(self, "pins", ()):
             pin.vertex = int(np.searchsorted(self.vertex_ids, pin.node))
+            if pin.radius > 0 and pin.active(self.state.time):
+                inside = self._within(pin.uv, pin.radius)
+                # The policy never merges a held particle; a scripted merge
+                # (apply_mesh_operations) may, and the patch lets it go.
+                keep = np.isin(pin.nodes, inside) | (pin.nodes == pin.node)
+                pin.nodes, pin.offsets = pin.nodes[keep], pin.offsets[keep]
+                new = np.setdiff1d(inside, pin.nodes)
+                if len(new):
+                    pin.hold_more(new, x[np.searchsorted(self.vertex_ids, new)], x[pin.vertex])
+            pin.vertices = np.searchsorted(self.vertex_ids, pin.nodes)
         for g in getattr(self, "grasps", ()):
             if g.closed and g.width > 0:
-                # A closed patch holds the material inside it: particles that
-                # splits made there are held too (else a patch closed on a
-                # coarse mesh would hold only its first few particles and let
-                # the refined cloth between them flap).
-                near = np.linalg.norm(self.mesh.uv - g.uv, axis=1) <= 0.5 * g.width + 1e-12
-                new = np.setdiff1d(self.vertex_ids[near], g.nodes)
+                new = np.setdiff1d(self._within(g.uv, 0.5 * g.width), g.nodes)
                 if len(new):
-                    g.hold_more(new, self.state.positions[np.searchsorted(self.vertex_ids, new)])
+                    g.hold_more(new, x[np.searchsorted(self.vertex_ids, new)])
+
+    def _within(self, uv: np.ndarray, radius: float) -> np.ndarray:
+        """Permanent ids (sorted) of the active particles within ``radius`` (m) of
+        material point ``uv`` ``(2,)`` (m) in (u, v): a holding patch."""
+        near = np.linalg.norm(self.mesh.uv - uv, axis=1) <= radius + 1e-12
+        return self.vertex_ids[near]
+
+    def _resolve_pin_patches(self) -> None:
+        """LOD on, at set-up: refine over every pin patch until it has each particle
+        the uniform maximum-level mesh has there, so the patch holds the same
+        material, in its rest shape, as on that mesh (a patch first held by a
+        coarse mesh would take the particles later splits make wherever the
+        motion has put them).  Held particles are never merged, so it stays
+        resolved.  Rounds of splits, each of the triangles containing a missing
+        lattice point; design §2."""
+        h, cloth = self.hierarchy, self.scene.cloth
+        block = cloth.width / cloth.base_blocks[0]
+        wanted = [uniform_vertices_within(cloth.width, cloth.height, block, cloth.level,
+                                          p.uv, p.radius) for p in self.scene.pins if p.radius > 0]
+        points = np.concatenate([np.zeros((0, 2))] + wanted)
+        tolerance = 1e-9 * max(cloth.width, cloth.height)
+        for _ in range(2 * (cloth.level + 2)):
+            mesh, _, triangle_ids = h.active_mesh()
+            missing = points[cKDTree(mesh.uv).query(points)[0] > tolerance] if len(points) \
+                else points
+            if not len(missing):
+                break
+            locator = PointLocator(mesh.uv, mesh.triangles, mesh.width, mesh.height)
+            for t in np.unique(triangle_ids[locator.locate(missing)[0]]):
+                h.refine(int(t))            # one split meanwhile as a neighbour is skipped
 
     @classmethod
     def from_scene(cls, scene: str | os.PathLike,
@@ -178,11 +222,16 @@ class ClothSim:
         if dist[vertex] > 1e-9 * max(self.mesh.width, self.mesh.height):
             log.warning("pin %r at uv=%s snapped to the nearest particle uv=%s (%.4g m away)",
                         cfg.name, uv.tolist(), self.mesh.uv[vertex].tolist(), dist[vertex])
+        node = int(self.vertex_ids[vertex])
+        nodes = np.union1d([node], self._within(uv, cfg.radius)) if cfg.radius > 0 \
+            else np.array([node], dtype=np.int64)
+        vertices = np.searchsorted(self.vertex_ids, nodes)
+        x = self.state.positions
         return Pin(name=cfg.name, uv=uv, vertex=vertex, snap_distance=float(dist[vertex]),
-                   node=int(self.vertex_ids[vertex]),
-                   anchor=self.state.positions[vertex].copy(),
+                   node=node, anchor=x[vertex].copy(),
                    waypoints=np.asarray(cfg.waypoints, dtype=float).reshape(-1, 4),
-                   release_time=cfg.release_time)
+                   release_time=cfg.release_time, radius=cfg.radius, nodes=nodes,
+                   vertices=vertices, offsets=x[vertices] - x[vertex])
 
     def pin(self, name: str) -> Pin:
         for p in self.pins:
@@ -193,8 +242,9 @@ class ClothSim:
     def set_pin_target(self, name: str, position) -> None:
         """Hold pin ``name`` at ``position`` (m) from the next step on.
 
-        The particle moves there in one step with the prescribed velocity
-        ``(target − x)/h`` (speed limiting belongs to the grasp layer).
+        The centre particle moves there in one step with the prescribed velocity
+        ``(target − x)/h`` (speed limiting belongs to the grasp layer); a patch
+        follows as a rigid translation.
         """
         position = np.asarray(position, dtype=float)
         if position.shape != (3,) or not np.all(np.isfinite(position)):
@@ -209,9 +259,9 @@ class ClothSim:
 
     def _held(self, time: float) -> tuple[np.ndarray, np.ndarray]:
         """Compact indices and end-of-step targets of every held particle."""
-        indices = [np.array([p.vertex for p in self.pins if p.active(time)], dtype=np.int64)]
-        targets = [np.array([p.target(time) for p in self.pins if p.active(time)],
-                            dtype=float).reshape(-1, 3)]
+        pins = [p for p in self.pins if p.active(time)]
+        indices = [np.zeros(0, dtype=np.int64)] + [p.vertices for p in pins]
+        targets = [np.zeros((0, 3))] + [p.held_targets(time) for p in pins]
         for g in self.grasps:
             if g.closed:
                 indices.append(np.searchsorted(self.vertex_ids, g.nodes))
@@ -220,7 +270,7 @@ class ClothSim:
 
     def _held_nodes(self) -> np.ndarray:
         time = self.state.time
-        nodes = [p.node for p in self.pins if p.active(time)]
+        nodes = [int(n) for p in self.pins if p.active(time) for n in p.nodes]
         nodes += [int(n) for g in self.grasps if g.closed for n in g.nodes]
         return np.array(nodes, dtype=np.int64)
 
@@ -245,8 +295,7 @@ class ClothSim:
         node, _ = self._particle_at(g.uv, g.tolerance, name)
         nodes = np.array([node], dtype=np.int64)
         if g.width > 0:
-            near = np.linalg.norm(self.rest_uv - g.uv, axis=1) <= 0.5 * g.width + 1e-12
-            nodes = np.union1d(nodes, self.vertex_ids[near])
+            nodes = np.union1d(nodes, self._within(g.uv, 0.5 * g.width))
         compact = np.searchsorted(self.vertex_ids, nodes)
         grip = self.positions[np.searchsorted(self.vertex_ids, node)]
         g.attach(nodes, self.positions[compact].copy(), grip)
@@ -390,7 +439,9 @@ class ClothSim:
             max_speed=float(np.sqrt(np.max(np.sum(v * v, axis=1)))),
             substeps=steps.substeps, rejected_steps=steps.rejected,
             smallest_step=steps.smallest, newton_iterations=report.newton_iterations,
-            solves=report.solves, solver=self.solver.backend.name)
+            solves=report.solves, solver=self.solver.backend.name,
+            air_power=air_power(self.elements, self.scene.air, self.scene.material.air_drag,
+                                self.masses, x, v))
         self.stats.append(stats)
         self.step_count += 1
         if self.keep_stats is not None and len(self.stats) > 2 * self.keep_stats:
@@ -402,9 +453,9 @@ class ClothSim:
 
         Args:
             changes: ``{"section.field": value}``, e.g.
-                ``{"lod.refine_threshold": 0.002, "material.bend_stiffness": 1e-4}``.
-                Only material (not density) and LOD thresholds take effect on a
-                running simulation (the mesh, masses, pins and obstacles are
+                ``{"lod.refine_threshold": 0.002, "air.wind": [2, 0, 0]}``.
+                Only material (not density), air and LOD thresholds take effect
+                on a running simulation (the mesh, masses, pins and obstacles are
                 built once).
 
         Raises:
@@ -414,6 +465,7 @@ class ClothSim:
         scene = live_update(self.scene, changes)
         self.scene = scene
         self.solver.material = scene.material
+        self.solver.air = scene.air
         if self.lod_policy is not None:
             self.lod_policy.config = scene.lod
             self.lod_policy.bend_stiffness = scene.material.bend_stiffness

@@ -1,8 +1,9 @@
 """Scene configuration: typed dataclasses with SI units, loaded from YAML.
 
-A scene file has the sections ``cloth``, ``material``, ``pins``, ``simulation``
-and ``solver`` (see ``config/scenes/hang_two_corners.yaml`` for every field with
-its unit).  Loading is strict: a missing required field, an unknown field, a
+A scene file has the sections ``cloth``, ``material``, ``air``, ``pins``,
+``simulation``, ``solver``, ``lod``, ``obstacles``, ``contact`` and ``grasps``,
+each field with its unit in the dataclasses below (the README lists them all).
+Loading is strict: a missing required field, an unknown field, a
 value of the wrong type or out of range raises :class:`SceneError` whose message
 names the field by its dotted path (``material.density``).
 
@@ -31,7 +32,7 @@ from .scene_yaml import load_yaml as _load_yaml
 from .scene_yaml import shorten as _show
 
 __all__ = [
-    "SceneError", "ClothConfig", "MaterialConfig", "PinConfig", "LodConfig",
+    "SceneError", "ClothConfig", "MaterialConfig", "AirConfig", "PinConfig", "LodConfig",
     "ObstacleConfig", "ContactConfig", "GraspConfig",
     "SimulationConfig", "SolverConfig", "SceneConfig",
     "load_scene", "scene_from_dict", "scene_to_dict", "apply_overrides",
@@ -87,8 +88,26 @@ class MaterialConfig:
                                    doc="Rayleigh coefficient: damping = this * stiffness")
     shear_damping: float = _spec("float", "s", ge=0, default=0.01, doc="as stretch_damping")
     bend_damping: float = _spec("float", "s", ge=0, default=0.1, doc="as stretch_damping")
-    air_drag: float = _spec("float", "1/s", ge=0, default=0.5,
-                            doc="drag force = -air_drag * mass * velocity")
+    air_drag: float = _spec("float", "1/s", ge=0, default=0.0,
+                            doc="isotropic drag force = -air_drag * mass * velocity (relative "
+                                "to the ground, in every direction; the air section models "
+                                "the air itself)")
+
+
+@dataclass(frozen=True)
+class AirConfig:
+    """Air on each face along its normal (design §2): per triangle the force
+    ``-1/2 density drag_coefficient A |v_n| v_n n`` (A its current area, n its unit
+    normal, v_n = n . (mean velocity of its corners - wind)), a third to each corner.
+    Sliding in its own plane or moving edge-on, the cloth feels none of it."""
+
+    density: float = _spec("float", "kg/m^3", ge=0, le=1000, default=1.2,
+                           doc="air density (1.2 at sea level and 20 C; 0: no face drag)")
+    drag_coefficient: float = _spec("float", "", ge=0, le=100, default=1.2,
+                                    doc="C_d on the face area (a thin square plate broadside "
+                                        "to the flow: about 1.2)")
+    wind: tuple = _spec("vec3", "m/s", ge=-1000, le=1000, default=(0.0, 0.0, 0.0),
+                        doc="uniform wind velocity")
 
 
 @dataclass(frozen=True)
@@ -101,6 +120,10 @@ class PinConfig:
                              doc="[[t, x, y, z], ...] target path, linear between points")
     release_time: float | None = _spec("float?", "s", ge=0, default=None,
                                        doc="simulation time at which the pin lets go")
+    radius: float = _spec("float", "m", ge=0, default=0.0,
+                          doc="0: hold the one particle nearest uv (a point load, whose "
+                              "sag and strain grow with refinement); > 0: hold every "
+                              "particle within this (u, v) distance as a rigid patch")
 
 
 @dataclass(frozen=True)
@@ -231,6 +254,7 @@ class SceneConfig:
     name: str = _spec("str", default="scene")
     description: str = _spec("str", default="")
     material: MaterialConfig = _spec("section", default_factory=MaterialConfig)
+    air: AirConfig = _spec("section", default_factory=AirConfig)
     pins: tuple = _spec("pins", default=())
     solver: SolverConfig = _spec("section", default_factory=SolverConfig)
     lod: LodConfig = _spec("section", default_factory=LodConfig)
@@ -240,8 +264,8 @@ class SceneConfig:
 
 
 _SECTION_TYPES = {"cloth": ClothConfig, "simulation": SimulationConfig,
-                  "material": MaterialConfig, "solver": SolverConfig, "lod": LodConfig,
-                  "contact": ContactConfig}
+                  "material": MaterialConfig, "air": AirConfig, "solver": SolverConfig,
+                  "lod": LodConfig, "contact": ContactConfig}
 
 
 def _number(value: Any, path: str, integer: bool = False) -> float:
@@ -437,6 +461,12 @@ def scene_from_dict(data: Any) -> SceneConfig:
         if not (0.0 <= u <= cloth.width and 0.0 <= v <= cloth.height):
             raise SceneError(f"field 'pins[{i}].uv' = {pin.uv} lies outside the "
                              f"{cloth.width} x {cloth.height} m cloth")
+        for j, other in enumerate(scene.pins[:i]):
+            reach = pin.radius + other.radius
+            if reach > 0 and math.dist(pin.uv, other.uv) <= reach:
+                raise SceneError(f"field 'pins[{i}].radius': its patch overlaps that of "
+                                 f"pins[{j}] (centres {math.dist(pin.uv, other.uv):.4g} m "
+                                 f"apart, radii {other.radius} + {pin.radius} m)")
     return scene
 
 

@@ -22,7 +22,11 @@ deformation gradient's columns, see :func:`precompute`):
   the border strip make a deficit of order one edge length).
 
 Damping is Rayleigh-like along each condition (BW §4.5):
-``f_d = −β k ∇C Ċ`` with ``β`` in seconds, plus air drag ``−c_air m v``.
+``f_d = −β k ∇C Ċ`` with ``β`` in seconds.  The air (:func:`air_forces`, design
+§2) pushes each face along its normal, ``−½ ρ C_d A |v_n| v_n n`` (ρ in kg/m³,
+C_d dimensionless, A the current area, v_n the normal component of the face's
+velocity relative to the wind), a third to each corner; the integrator adds the
+isotropic ``−c_air m v`` of ``material.air_drag`` itself.
 
 Jacobians (what the implicit solve keeps; design §2–3):
 
@@ -31,7 +35,9 @@ Jacobians (what the implicit solve keeps; design §2–3):
 * shear and bend: the Gauss–Newton part ``−k ∇C ∇Cᵀ`` only; ``C ∇²C`` is
   indefinite for any sign of C and is dropped (it vanishes at rest);
 * damping: ``∂f_d/∂v = −β k ∇C ∇Cᵀ`` (exact); ``∂f_d/∂x`` is dropped (BW §5.2,
-  it is non-symmetric).
+  it is non-symmetric);
+* air: ``∂f/∂v`` exact (``−ρ C_d A |v_n| / 9 · n nᵀ`` between any two corners of
+  a face); the dependence on x through n and A is dropped like ``∂f_d/∂x``.
 
 So every kept block is negative semi-definite and the system matrix
 ``M − h ∂f/∂v − h² ∂f/∂x`` is symmetric positive definite.
@@ -46,7 +52,7 @@ import numpy as np
 from .mesh48 import RestMesh
 
 __all__ = ["Elements", "Evaluation", "precompute", "evaluate", "elastic_energies",
-           "stretch_lengths", "hinge_angles"]
+           "stretch_lengths", "hinge_angles", "air_forces", "air_power"]
 
 
 @dataclass(frozen=True)
@@ -158,7 +164,8 @@ class Evaluation:
     """Internal forces of the cloth at one state.
 
     Attributes:
-        force: ``(n, 3)`` elastic + damping forces in N (no gravity or drag).
+        force: ``(n, 3)`` elastic + damping forces in N, plus the air's face
+            forces when ``evaluate`` is given ``air`` (no gravity, no isotropic drag).
         stretch_energy, shear_energy, bend_energy: J.
         max_strain: largest ``| |w| − 1 |`` over triangles and directions.
         stiffness_times_velocity: ``(n, 3)`` ``(∂f/∂x) v`` with the kept
@@ -186,7 +193,7 @@ class Evaluation:
 
 def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
              stiffness_weight: float = 0.0, damping_weight: float = 0.0,
-             with_blocks: bool = True) -> Evaluation:
+             with_blocks: bool = True, air=None) -> Evaluation:
     """Forces, energies and system-matrix blocks of all conditions.
 
     Args:
@@ -199,6 +206,10 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
             ``−(stiffness_weight·∂f/∂x + damping_weight·∂f/∂v)``; the implicit
             step uses ``h²`` and ``h``.
         with_blocks: skip the blocks (forces and energies only).
+        air: the scene's ``air`` section (``density`` kg/m³, ``drag_coefficient``,
+            ``wind`` m/s) or None: its face forces (:func:`air_forces`) are added
+            to ``force`` and their ``∂f/∂v`` blocks, times ``damping_weight``, to
+            ``triangle_blocks``.
     """
     n = elements.vertex_count
     tri = elements.triangles
@@ -287,6 +298,12 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
         hinge_blocks = (((cK + cD * bb) * kb * weight)[:, None, None]
                         * g[:, :, None] * g[:, None, :]).reshape(len(g), 4, 3, 4, 3)
 
+    if air is not None:
+        air_force, air_blocks = air_forces(elements, air, x, v, damping_weight, with_blocks)
+        force += air_force
+        if tri_blocks is not None and air_blocks is not None:
+            tri_blocks += air_blocks
+
     strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
     return Evaluation(
         force=force,
@@ -297,6 +314,75 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
         stiffness_times_velocity=kv,
         triangle_blocks=tri_blocks, hinge_blocks=hinge_blocks,
         hinge_angle=theta, hinge_gradient=grad_b)
+
+
+def air_forces(elements: Elements, air, x: np.ndarray, v: np.ndarray,
+               damping_weight: float = 0.0, with_blocks: bool = False):
+    """Forces of the air on each face, along its normal (design §2).
+
+    Per triangle with current area ``A`` (m²) and unit normal ``n``, the relative
+    velocity ``v_rel`` = mean of its three corners' velocities − ``air.wind``
+    (m/s), ``v_n = n · v_rel``: the face force is ``−½ ρ C_d A |v_n| v_n n`` (N),
+    a third to each corner.  It depends on the normal motion only: a sheet
+    sliding in its own plane or moving edge-on feels nothing, a flat sheet
+    falling face-on reaches ``√(2 ρ_areal g / (ρ C_d))``.  It is a force per unit
+    area times the area, so it means the same at every level.  With still air
+    its power ``Σ f·v = −Σ ½ ρ C_d A |v_n|³`` is never positive.
+
+    ``∂f_i/∂v_j = −(ρ C_d A |v_n| / 9) n nᵀ`` for every pair of corners (i, j) of
+    a face: symmetric negative semi-definite (rank one per face), kept exactly.
+    The dependence on x through n and A is dropped, like BW's ``∂f_d/∂x``
+    (design §3): it is not symmetric.  No linear term: with this Jacobian the
+    implicit step never adds kinetic energy in still air (in still air
+    ``f = −½ D v`` with D the PSD matrix above, so each mode of ``M⁻¹D`` keeps
+    ``1 − hλ/(2(1 + hλ))`` or more of its speed and never reverses), so the
+    quadratic law needs no help to stay stable; and at cloth speeds the air's
+    Reynolds number is ~10³ or more, where drag is quadratic.
+
+    Args:
+        elements: rest data (only ``triangles`` is used: the area is the current one).
+        air: ``density`` (kg/m³), ``drag_coefficient`` (dimensionless),
+            ``wind`` ``(3,)`` (m/s).
+        x, v: ``(n, 3)`` positions (m) and velocities (m/s).
+        damping_weight: the blocks are ``−damping_weight · ∂f/∂v``.
+        with_blocks: also return the blocks.
+
+    Returns:
+        ``(force (n, 3) N, blocks (t, 3, 3, 3, 3) or None)``, blocks laid out as
+        :attr:`Evaluation.triangle_blocks`.
+    """
+    tri = elements.triangles
+    n_vertices = elements.vertex_count
+    coefficient = 0.5 * air.density * air.drag_coefficient
+    if coefficient == 0.0 or not len(tri):
+        blocks = np.zeros((len(tri), 3, 3, 3, 3)) if with_blocks else None
+        return np.zeros((n_vertices, 3)), blocks
+    xt = x[tri]
+    cross = _cross(xt[:, 1] - xt[:, 0], xt[:, 2] - xt[:, 0])      # |cross| = 2 A
+    twice_area = np.sqrt(_dot(cross, cross))
+    normal = cross / np.maximum(twice_area, np.finfo(float).tiny)[:, None]  # 0 if collapsed
+    v_rel = v[tri].mean(axis=1) - np.asarray(air.wind, dtype=float)
+    v_n = _dot(normal, v_rel)
+    k = coefficient * 0.5 * twice_area                               # ½ ρ C_d A, kg/m
+    corner = (-k * np.abs(v_n) * v_n / 3.0)[:, None] * normal       # N, each corner
+    force = _scatter(tri, np.repeat(corner[:, None, :], 3, axis=1), n_vertices)
+    blocks = None
+    if with_blocks:
+        # −∂f_i/∂v_j = (2 k |v_n| / 9) n nᵀ for every corner pair (i, j).
+        outer = (damping_weight * 2.0 * k * np.abs(v_n) / 9.0)[:, None, None] \
+            * normal[:, :, None] * normal[:, None, :]                 # (t, 3, 3)
+        blocks = np.broadcast_to(outer[:, None, :, None, :], (len(tri), 3, 3, 3, 3)).copy()
+    return force, blocks
+
+
+def air_power(elements: Elements, air, air_drag: float, masses: np.ndarray,
+              x: np.ndarray, v: np.ndarray) -> float:
+    """Power (W) of the air on the cloth at positions ``x`` (m), velocities ``v``
+    (m/s): the face forces of :func:`air_forces` plus the isotropic drag
+    ``−air_drag m v`` (``air_drag`` 1/s, ``masses`` ``(n,)`` kg), on every particle.
+    Never positive in still air (design §2); wind can make it positive."""
+    force, _ = air_forces(elements, air, x, v)
+    return float(np.sum(force * v) - air_drag * np.sum(masses * _dot(v, v)))
 
 
 def elastic_energies(elements: Elements, material, x: np.ndarray) -> dict:

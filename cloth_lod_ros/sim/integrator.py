@@ -105,14 +105,17 @@ class ImplicitStageSolver:
     call :meth:`reset_topology` after it changes.
     """
 
-    def __init__(self, solver_config, material, gravity, geometry=None):
+    def __init__(self, solver_config, material, gravity, geometry=None, air=None):
         """Args:
             solver_config: the scene's ``solver`` section (method, tolerance, ...).
             material: the scene's material.  gravity: ``(3,)`` m/s².
             geometry: ``(width, height, block)`` of the cloth in m, for the
                 multigrid backend's lattices.
+            air: the scene's ``air`` section (face drag, wind) or None; passed
+                to :func:`~cloth_lod_ros.sim.forces.evaluate`.
         """
         self.material = material
+        self.air = air
         self.gravity = np.asarray(gravity, dtype=float)
         self.backend = make_solver(solver_config.method, solver_config.tolerance,
                                    solver_config.max_iterations, geometry)
@@ -149,14 +152,14 @@ class ImplicitStageSolver:
         """
         cached = self._evaluated
         if (cached is not None and cached[0] is elements and cached[1] == gh
-                and cached[2] is self.material          # the node can change it live
+                and cached[2] is self.material and cached[6] is self.air   # live changes
                 and np.array_equal(cached[3], x) and np.array_equal(cached[4], v)):
             return cached[5], 0.0
         start = _time.perf_counter()
         ev = evaluate(elements, self.material, x, v,
-                      stiffness_weight=gh * gh, damping_weight=gh)
+                      stiffness_weight=gh * gh, damping_weight=gh, air=self.air)
         ms = 1e3 * (_time.perf_counter() - start)
-        self._evaluated = (elements, gh, self.material, x.copy(), v.copy(), ev)
+        self._evaluated = (elements, gh, self.material, x.copy(), v.copy(), ev, self.air)
         return ev, ms
 
     def _linearise(self, elements, masses, x_hat, v_hat, gh, velocities, at_start):
@@ -185,7 +188,7 @@ class ImplicitStageSolver:
         ``velocities`` ``(n, 3)`` m/s, the particles ``frozen`` (held, in
         contact) left out: the line search's merit.  Forces only, no blocks."""
         x = x_hat + gh * velocities
-        ev = evaluate(elements, self.material, x, velocities, with_blocks=False)
+        ev = evaluate(elements, self.material, x, velocities, with_blocks=False, air=self.air)
         drag = self.material.air_drag
         force = ev.force + masses[:, None] * (self.gravity - drag * velocities)
         residual = gh * force - masses[:, None] * (velocities - v_hat)

@@ -30,6 +30,7 @@ __all__ = [
     "Hinges",
     "base_mesh",
     "refine_uniform",
+    "uniform_vertices_within",
     "build_hinges",
     "triangle_rest_areas",
     "lumped_masses",
@@ -167,6 +168,31 @@ class Hinges:
     triangles: np.ndarray
     is_hypotenuse: np.ndarray
     boundary_edges: np.ndarray
+
+
+def uniform_vertices_within(width: float, height: float, block: float, level: int,
+                            centre, radius: float) -> np.ndarray:
+    """``(m, 2)`` rest (u, v) (m) of the vertices of the uniform level-``level`` mesh
+    within ``radius`` (m) of ``centre`` ``(2,)`` (m), without building the mesh.
+
+    At level 2p the vertices of a 4-8 mesh of square blocks of side ``block`` (m)
+    are the lattice of spacing ``block / 2**p``; level 2p + 1 adds the centres of
+    its cells (design §3, the multigrid's lattices).
+    """
+    step = block / 2 ** (level // 2)
+    centre = np.asarray(centre, dtype=float)
+    shifts = [(0.0, 0.0), (0.5, 0.5)] if level % 2 else [(0.0, 0.0)]
+    out = []
+    for du, dv in shifts:
+        lo = np.floor((centre - radius) / step - (du, dv)) - 1
+        hi = np.ceil((centre + radius) / step - (du, dv)) + 1
+        i, j = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+        uv = np.column_stack([(i.ravel() + du) * step, (j.ravel() + dv) * step])
+        keep = ((np.linalg.norm(uv - centre, axis=1) <= radius + 1e-12)
+                & (uv[:, 0] >= 0) & (uv[:, 0] <= width + 1e-12)
+                & (uv[:, 1] >= 0) & (uv[:, 1] <= height + 1e-12))
+        out.append(uv[keep])
+    return np.concatenate(out)
 
 
 def build_hinges(triangles: np.ndarray, vertex_count: int) -> Hinges:

@@ -51,6 +51,10 @@ class StepStats:
     (Newton iterations, friction rounds, contact re-solves, rejected attempts),
     all timed in ``solve_ms``; ``solver`` names the backend that ran
     (:mod:`~cloth_lod_ros.sim.solvers`).
+    ``air_power`` (W) is the power of the air on the cloth at the end of the
+    step (face drag relative to the wind plus the isotropic
+    ``material.air_drag``; :func:`~cloth_lod_ros.sim.forces.air_power`): never
+    positive in still air, where ``−air_power`` is what the air dissipates.
     """
 
     step_index: int
@@ -83,6 +87,7 @@ class StepStats:
     rejected_steps: int = 0
     smallest_step: float = 0.0
     newton_iterations: int = 1
+    air_power: float = 0.0
 
     @property
     def total_energy(self) -> float:

@@ -42,7 +42,8 @@ def save_state(path: Path, sim: ClothSim) -> None:
     """Write the final state and every step's statistics to ``path`` (.npz).
 
     Keys: ``x`` (n,3) m, ``v`` (n,3) m/s, ``uv`` (n,2) m, ``mass`` (n,) kg,
-    ``triangles`` (t,3), ``levels`` (t,), ``time`` s, ``pinned`` (k,), and
+    ``triangles`` (t,3), ``levels`` (t,), ``time`` s, ``pinned`` (k,) (the
+    particles active pins hold, every particle of a patch), and
     ``stats_<field>`` (steps,) for each :class:`StepStats` field.
     """
     fields = StepStats.__dataclass_fields__
@@ -58,7 +59,8 @@ def save_state(path: Path, sim: ClothSim) -> None:
     np.savez_compressed(
         path, x=sim.positions, v=sim.velocities, uv=sim.rest_uv, mass=sim.masses,
         triangles=sim.triangles, levels=sim.triangle_levels, time=sim.time,
-        pinned=np.array([p.vertex for p in sim.pins], dtype=np.int64),
+        pinned=np.concatenate([np.zeros(0, np.int64)]
+                              + [p.vertices for p in sim.pins if p.active(sim.time)]),
         scene=sim.scene.name, **stats)
 
 

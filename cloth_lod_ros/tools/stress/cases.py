@@ -222,7 +222,11 @@ CASES: tuple[Case, ...] = (
         name="drop_on_sphere_fast",
         description="cloth thrown onto a sphere at 5 m/s",
         scene="drop_on_sphere",
-        overrides={},
+        # In vacuum: in air, the face drag (-1/2 rho C_d A v^2, 90 m/s^2 at
+        # 5 m/s for this cloth) would take a fifth of the speed before impact
+        # and half the case's point (measured: strain 0.15, energy 1.4x its
+        # budget without the step-size control, against 0.4 and 9x in vacuum).
+        overrides={"air.density": 0.0},
         full=Variant(3.0, 6), quick=Variant(0.5, 4),
         # Contact is inelastic, so the energy can only fall; but the impact
         # steps still grow some triangles' stretch by up to the step-size
