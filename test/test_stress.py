@@ -104,15 +104,18 @@ def test_a_violated_bound_is_reported_as_fail(monkeypatch, capsys):
 
 
 def test_thrashing_without_hysteresis_is_caught():
-    """Near-equal thresholds with no minimum lifetime really thrash: the
-    topology check (not an injected bound) fails."""
+    """Near-equal thresholds with no minimum lifetime and no merge energy bound
+    really thrash: the topology check (not an injected bound) fails.  (The
+    merge energy bound alone holds this case to 1.0 operations/s per particle,
+    and is switched off here.)"""
     case = CASE["near_equal_thresholds"]
-    no_lifetime = dataclasses.replace(
-        case, overrides={**case.overrides, "lod.min_lifetime": 0.0})
-    result = run_case(no_lifetime, lod=True, quick=True)
+    no_hysteresis = dataclasses.replace(
+        case, overrides={**case.overrides, "lod.min_lifetime": 0.0,
+                         "lod.max_merge_speed": 100.0})
+    result = run_case(no_hysteresis, lod=True, quick=True)
     assert not result.passed
     assert [f.split(":")[0] for f in result.failures] == ["topology"]
-    assert result.max_turnover > 1.5 * case.bounds.turnover      # measured 10
+    assert result.max_turnover > 1.2 * case.bounds.turnover      # measured 7.5
 
 
 def test_a_linearisation_blow_up_is_caught_without_the_step_size_control(monkeypatch):

@@ -20,12 +20,16 @@ flat pair from that arc is ``d = L (1 − cos(θ/2)) / (2 sin(θ/2))``, which is
   (c) each child triangle has existed for at least ``min_lifetime`` seconds
   (hysteresis against refine/simplify cycles; it never delays refinement);
   (d) no pin or contact holds the midpoint particle;
-  (e) the merge adds at most ``max_merge_energy`` joules to the cloth's total
-  energy (elastic + kinetic + gravity, :mod:`cloth_lod_ros.sim.merge_energy`).
-  The hinge tests see bending only: a diamond stretched or sheared in its plane
-  has flat hinges, but its coarse triangles replace the path through m by the
-  chord and its stretch energy jumps (up to +0.96 mJ per merge measured on
-  ``hang_two_corners`` before this test; design §4).
+  (e) the merge adds to the cloth's total energy (elastic + kinetic + gravity,
+  :mod:`cloth_lod_ros.sim.merge_energy`) at most what would move its diamond
+  at ``max_merge_speed``: ``ΔE ≤ ½ ρ A v²`` (ρ the areal density, A the
+  diamond's rest area).  The hinge tests see bending only: a diamond stretched
+  or sheared in its plane has flat hinges, but its coarse triangles replace
+  the path through m by the chord and its stretch energy jumps (up to +0.96 mJ
+  per merge measured on ``hang_two_corners`` before this test; design §4).
+  Scaling the bound with the diamond's mass bounds the kick a merge gives,
+  the same on every level: a fixed number of joules would be a large kick to
+  a small fine diamond and a strict limit on a large coarse one.
 """
 
 from __future__ import annotations
@@ -94,16 +98,16 @@ def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
 class LodDecision:
     """Pool triangle ids to refine (most curved first) and split edges to merge.
 
-    ``merge_energy`` and ``merge_kinetic`` (``(len(merge),)``, J) are the energy
-    each merge was tested to add and its kinetic part; ``max_merge_energy`` (J)
-    the bound it was tested against.
+    ``merge_energy``, ``merge_kinetic`` and ``merge_bound`` (``(len(merge),)``,
+    J) are the energy each merge was tested to add, its kinetic part and the
+    most it may add.
     """
 
     refine: list
     merge: list
     merge_energy: np.ndarray | None = None
     merge_kinetic: np.ndarray | None = None
-    max_merge_energy: float = np.inf
+    merge_bound: np.ndarray | None = None
 
 
 class LodPolicy:
@@ -163,7 +167,7 @@ class LodPolicy:
             refine = candidates[np.sort(first)].tolist()
 
         # Simplify: split particles all of whose hinges are flat and settled.
-        merge, energy, kinetic = [], np.zeros(0), np.zeros(0)
+        merge, energy, kinetic, bound = [], np.zeros(0), np.zeros(0), np.zeros(0)
         vertices, kids = hierarchy.split_vertices()
         if len(vertices):
             unsettled = ((measures.deviation >= cfg.coarsen_threshold)
@@ -183,16 +187,17 @@ class LodPolicy:
                 ok &= ~(near & (child_level - 1 < cfg.detail_level))
             if supported is not None and ok.any():
                 ok[ok] &= ~supported(vertices[ok])
-            # (e) the merge adds at most max_merge_energy (elastic + kinetic + gravity).
+            # (e) the merge adds at most ½ ρ A v² (elastic + kinetic + gravity).
             keep = np.flatnonzero(ok)
             added = merge_energy_change(hierarchy, elements, vertex_ids, triangle_ids,
                                         vertices[keep], x, v, masses, self.material,
                                         self.gravity, hinge_angle=measures.angle)
-            low = added.total <= cfg.max_merge_energy
+            bound = 0.5 * self.material.density * added.area * cfg.max_merge_speed**2
+            low = added.total <= bound
             keep = keep[low]
             merge = [(int(a), int(b)) for a, b in hierarchy.vertex_edge[vertices[keep]]]
-            energy, kinetic = added.total[low], added.kinetic[low]
-        return LodDecision(refine, merge, energy, kinetic, cfg.max_merge_energy)
+            energy, kinetic, bound = added.total[low], added.kinetic[low], bound[low]
+        return LodDecision(refine, merge, energy, kinetic, bound)
 
     def _detail_triangles(self, elements, hierarchy, triangle_ids, detail_points,
                           in_contact) -> np.ndarray:
@@ -220,10 +225,10 @@ class LodPolicy:
         An earlier operation of the same decision changes it in two ways only:
         through the mass or velocity of one of its edge ends (its kinetic part
         is then computed again, and the merge skipped if the total now exceeds
-        ``max_merge_energy``), or by replacing a triangle across one of its
-        diamond's outer edges (the merge is skipped).  So every merge adds at
-        most ``max_merge_energy``.  A skipped merge, or one a split made
-        invalid, is decided again at the next check.
+        its bound), or by replacing a triangle across one of its diamond's
+        outer edges (the merge is skipped).  So every merge adds at most its
+        bound.  A skipped merge, or one a split made invalid, is decided again
+        at the next check.
         """
         moved: set[int] = set()          # particles whose mass or velocity changed
         changed: set = set()             # edges whose triangles were replaced
@@ -247,7 +252,7 @@ class LodPolicy:
                     hierarchy.mass_units[particles][None] * hierarchy.unit_mass,
                     hierarchy.v[particles][None])[0]
                 if (decision.merge_energy[i] - decision.merge_kinetic[i] + kinetic
-                        > decision.max_merge_energy):
+                        > decision.merge_bound[i]):
                     continue
             parents = [t for t in hierarchy.vertex_parents[m] if t >= 0]
             outer = [e for t in parents for e in _edges(hierarchy.tri[t])[::2]]

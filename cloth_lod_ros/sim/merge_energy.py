@@ -43,11 +43,17 @@ __all__ = ["MergeEnergy", "merge_energy_change", "merge_kinetic_change"]
 
 @dataclass(frozen=True)
 class MergeEnergy:
-    """Energy changes of merges, J, ``(k,)`` each: the ``total`` and its ``kinetic`` part
-    (the one part an earlier merge sharing an edge end changes)."""
+    """Energy changes of merges, ``(k,)`` each.
+
+    Attributes:
+        total: ΔE in J; kinetic: its kinetic part, J (the one part an earlier
+        merge sharing an edge end changes); area: rest area of the merged
+        diamond (its one or two parents), m².
+    """
 
     total: np.ndarray
     kinetic: np.ndarray
+    area: np.ndarray
 
 
 def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: np.ndarray,
@@ -73,12 +79,12 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
 
     Returns:
         :class:`MergeEnergy`: ``total`` ``(k,)`` ΔE in J (positive when the
-        merge would add energy) and its ``kinetic`` part.
+        merge would add energy), its ``kinetic`` part and the diamonds' ``area``.
     """
     vertices = np.asarray(vertices, dtype=np.int64)
     k = len(vertices)
     if k == 0:
-        return MergeEnergy(np.zeros(0), np.zeros(0))
+        return MergeEnergy(np.zeros(0), np.zeros(0), np.zeros(0))
     h = hierarchy
     mid = np.searchsorted(vertex_ids, vertices)                      # compact m
     ends = np.searchsorted(vertex_ids, h.vertex_edge[vertices])      # (k, 2) l, r
@@ -108,7 +114,8 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
     kinetic = merge_kinetic_change(masses[particles], v[particles])
     chord_mid = 0.5 * (x[ends[:, 0]] + x[ends[:, 1]])
     delta += kinetic + masses[mid] * ((x[mid] - chord_mid) @ np.asarray(gravity, dtype=float))
-    return MergeEnergy(delta, kinetic)
+    area = np.bincount(np.nonzero(has)[0], weights=parent_area, minlength=k)
+    return MergeEnergy(delta, kinetic, area)
 
 
 def merge_kinetic_change(masses: np.ndarray, velocities: np.ndarray) -> np.ndarray:
