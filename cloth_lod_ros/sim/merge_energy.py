@@ -25,8 +25,10 @@ kinetic energy of m and both ends before and after the velocity change of
 ``m_mid g · (x_mid − ½(x_left + x_right))``.  It is the exact energy
 difference of the merged and unmerged meshes (tested against whole-mesh
 energies), vectorised over candidates: no per-candidate Python loop.
-Merges whose diamonds share no particle do not interact, so each one's
-change is still exact when several of them are applied in one step.
+Merges applied one after another interact only through a shared edge end
+(its mass and velocity: the ``kinetic`` part, which
+:func:`merge_kinetic_change` recomputes) or a shared outer edge (the triangle
+across it); :meth:`cloth_lod_ros.sim.lod.LodPolicy.apply` deals with both.
 """
 
 from __future__ import annotations
