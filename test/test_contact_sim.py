@@ -104,7 +104,10 @@ def test_drop_on_disc_coarsens_where_it_lies_flat():
     before = flat_region_triangles()
     sim.run(2.0)
     after = flat_region_triangles()
-    assert after < 0.7 * before            # coarsened on the table top
+    # Coarsened on the table top: 64 -> 48 triangles measured.  (32 before merges
+    # had to respect lod.max_merge_speed: they now wait until the landing has
+    # settled, and by then a shallow wrinkle, d between the thresholds, holds 16.)
+    assert after < 0.9 * before
     rim = np.abs(np.hypot(*sim.positions[sim.triangles].mean(axis=1)[:, :2].T) - 0.32) < 0.04
     assert sim.triangle_levels[rim].mean() > sim.triangle_levels[~rim].mean()
     assert sum(s.merges for s in sim.stats) > 10

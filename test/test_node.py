@@ -217,10 +217,11 @@ def test_parameters_from_another_process_change_the_lod(running):
     node.spin_for(1.0)
     before = int(node.stat("triangles"))
     assert before > 200                              # the hanging cloth is refined
-    # Coarsen wherever possible: thresholds far above any curvature or motion.
+    # Coarsen wherever possible: thresholds far above any curvature, motion or
+    # energy a merge adds.
     result = set_params(node, **{"lod.refine_threshold": 0.5, "lod.coarsen_threshold": 0.4,
                                  "lod.max_hinge_rate": 1000.0, "lod.max_bend_force": 1000.0,
-                                 "lod.min_lifetime": 0.0})
+                                 "lod.max_merge_speed": 100.0, "lod.min_lifetime": 0.0})
     assert result.successful, result.reason
     assert node.spin_until(lambda: int(node.stat("triangles")) < 0.5 * before, 15.0), \
         (before, node.stat("triangles"))

@@ -104,22 +104,24 @@ def test_a_violated_bound_is_reported_as_fail(monkeypatch, capsys):
 
 
 def test_thrashing_without_hysteresis_is_caught():
-    """Near-equal thresholds with no hysteresis (no minimum lifetime, merges
-    allowed however fast the hinges turn and whatever they carry) really
-    thrash: the topology check (not an injected bound) fails.  (With the
-    corners held over patches, removing only the minimum lifetime gives 5.4
-    operations/s per particle, barely over the bound; with point pins it gave 10.)"""
+    """Near-equal thresholds with no hysteresis (no minimum lifetime, no merge
+    energy bound, merges allowed however fast the hinges turn and whatever they
+    carry) really thrash: the topology check (not an injected bound) fails.
+    (The merge energy bound alone holds this case to 1.0 operations/s per
+    particle; with the corners held over patches, removing only the minimum
+    lifetime gave 5.4, barely over the bound; with point pins it gave 10.)"""
     case = CASE["near_equal_thresholds"]
     # The checker is what is tested: without any hysteresis and with the paper's
     # integrator (first order, with its numerical damping) this case thrashes.
     no_hysteresis = dataclasses.replace(
         case, overrides={**case.overrides, "lod.min_lifetime": 0.0,
+                         "lod.max_merge_speed": 100.0,
                          "lod.max_hinge_rate": 1e3, "lod.max_bend_force": 1e3,
                          "simulation.integrator": "baraff_witkin"})
     result = run_case(no_hysteresis, lod=True, quick=True)
     assert not result.passed
     assert [f.split(":")[0] for f in result.failures] == ["topology"]
-    assert result.max_turnover > 1.5 * case.bounds.turnover      # measured 10
+    assert result.max_turnover > 1.2 * case.bounds.turnover      # measured 7.5
 
 
 def test_a_linearisation_blow_up_is_caught_without_the_step_size_control(monkeypatch):

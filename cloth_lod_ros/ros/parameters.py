@@ -29,6 +29,7 @@ LIVE = {
     "lod.min_lifetime": ("lod.min_lifetime", "s", 0.0, 60.0),
     "lod.max_hinge_rate": ("lod.max_hinge_rate", "rad/s", 1e-6, 1e3),
     "lod.max_bend_force": ("lod.max_bend_force", "N", 1e-9, 1e3),
+    "lod.max_merge_speed": ("lod.max_merge_speed", "m/s", 0.0, 100.0),
     "material.stretch_stiffness": ("material.stretch_stiffness", "N/m", 0.0, 1e7),
     "material.shear_stiffness": ("material.shear_stiffness", "N/m", 0.0, 1e7),
     "material.bend_stiffness": ("material.bend_stiffness", "N*m", 0.0, 10.0),

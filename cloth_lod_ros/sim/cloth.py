@@ -121,7 +121,7 @@ class ClothSim:
                                          scene.material.density, max_level=cloth.level)
             self.hierarchy.refine_uniform(scene.lod.initial_level)
             self._resolve_pin_patches()
-            self.lod_policy = LodPolicy(scene.lod, scene.material.bend_stiffness)
+            self.lod_policy = LodPolicy(scene.lod, scene.material, scene.simulation.gravity)
             self.state = ClothState(np.zeros((0, 3)), np.zeros((0, 3)), 0.0)
             self._adopt_hierarchy()
         else:
@@ -468,7 +468,7 @@ class ClothSim:
         self.solver.air = scene.air
         if self.lod_policy is not None:
             self.lod_policy.config = scene.lod
-            self.lod_policy.bend_stiffness = scene.material.bend_stiffness
+            self.lod_policy.material = scene.material
 
     def _sync_hierarchy(self) -> Hierarchy48:
         """Write the live state back into the hierarchy (it is only read at
@@ -524,7 +524,7 @@ class ClothSim:
             in_contact[self.contacts.indices] = True
         decision = self.lod_policy.decide(
             h, self.elements, self.vertex_ids, self.triangle_ids, self.state.positions,
-            self.state.velocities, time, held_nodes, detail_points=detail_points,
+            self.state.velocities, self.masses, time, held_nodes, detail_points=detail_points,
             in_contact=in_contact,
             supported=self._merge_would_sink if self.obstacles else None)
         if not decision.refine and not decision.merge:

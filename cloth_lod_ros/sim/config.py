@@ -236,6 +236,10 @@ class LodConfig:
                                   doc="merge only where every |dtheta/dt| is below this")
     max_bend_force: float = _spec("float", "N", gt=0, default=1e-3,
                                   doc="merge only where every bend force is below this")
+    max_merge_speed: float = _spec("float", "m/s", ge=0, default=0.03,
+                                   doc="merge only where the energy the merge adds (elastic + "
+                                       "kinetic + gravity) would move its diamond at most this "
+                                       "fast: dE <= density x area x speed^2 / 2")
     min_lifetime: float = _spec("float", "s", ge=0, default=0.2,
                                 doc="a triangle must exist this long before a merge removes it")
     check_interval: int = _spec("int", "steps", ge=1, default=1,

@@ -52,7 +52,8 @@ import numpy as np
 from .mesh48 import RestMesh
 
 __all__ = ["Elements", "Evaluation", "precompute", "evaluate", "elastic_energies",
-           "stretch_lengths", "hinge_angles", "air_forces", "air_power"]
+           "stretch_lengths", "hinge_angles", "air_forces", "air_power", "triangle_maps",
+           "hinge_weights", "membrane_energies"]
 
 
 @dataclass(frozen=True)
@@ -89,25 +90,66 @@ def precompute(mesh: RestMesh) -> Elements:
     in the three positions; its coefficients are stored once per topology.
     """
     uv, tri = mesh.uv, mesh.triangles
-    d1 = uv[tri[:, 1]] - uv[tri[:, 0]]
-    d2 = uv[tri[:, 2]] - uv[tri[:, 0]]
-    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
-    a1, a2 = d2[:, 1] / det, -d1[:, 1] / det
-    b1, b2 = -d2[:, 0] / det, d1[:, 0] / det
-    coef_u = np.column_stack([-(a1 + a2), a1, a2])
-    coef_v = np.column_stack([-(b1 + b2), b1, b2])
-    area = 0.5 * det
-
+    area, coef_u, coef_v = triangle_maps(uv[tri])
     hinges = mesh.hinges()
     edge_vec = uv[hinges.edge[:, 1]] - uv[hinges.edge[:, 0]]
-    pair_area = area[hinges.triangles].sum(axis=1)
-    gamma = np.where(hinges.is_hypotenuse, 0.5, 1.0).mean(axis=1)
-    weight = gamma * np.einsum("ij,ij->i", edge_vec, edge_vec) / pair_area
+    weight = hinge_weights(np.einsum("ij,ij->i", edge_vec, edge_vec),
+                           area[hinges.triangles], hinges.is_hypotenuse)
     return Elements(
         triangles=tri.copy(), area=area, coef_u=coef_u, coef_v=coef_v,
         hinge_vertices=np.column_stack([hinges.edge, hinges.opposite]),
         hinge_weight=weight, hinge_triangles=hinges.triangles,
         vertex_count=mesh.vertex_count)
+
+
+def triangle_maps(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rest area and deformation-gradient coefficients of triangles (BW §4.2).
+
+    Args:
+        corners: ``(t, 3, 2)`` rest (u, v) of each triangle's corners, m.
+
+    Returns:
+        ``area`` ``(t,)`` in m² and ``coef_u``, ``coef_v`` ``(t, 3)`` in 1/m, with
+        ``w_u = Σ_k coef_u[k] x_k`` (see :class:`Elements`).
+    """
+    d1 = corners[:, 1] - corners[:, 0]
+    d2 = corners[:, 2] - corners[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    a1, a2 = d2[:, 1] / det, -d1[:, 1] / det
+    b1, b2 = -d2[:, 0] / det, d1[:, 0] / det
+    coef_u = np.column_stack([-(a1 + a2), a1, a2])
+    coef_v = np.column_stack([-(b1 + b2), b1, b2])
+    return 0.5 * det, coef_u, coef_v
+
+
+def hinge_weights(edge_length2: np.ndarray, areas: np.ndarray,
+                  hypotenuse: np.ndarray) -> np.ndarray:
+    """Bend weights ``c_e = γ |e|² / (A₁ + A₂)`` (design §2), dimensionless, ``(h,)``.
+
+    Args:
+        edge_length2: ``(h,)`` rest ``|e|²``, m².
+        areas: ``(h, 2)`` rest areas of the two triangles, m².
+        hypotenuse: ``(h, 2)`` whether the edge is that triangle's hypotenuse
+            (γ = ½ on such a side, 1 on a leg side, averaged over both).
+    """
+    gamma = np.where(hypotenuse, 0.5, 1.0).mean(axis=1)
+    return gamma * edge_length2 / areas.sum(axis=1)
+
+
+def membrane_energies(coef_u: np.ndarray, coef_v: np.ndarray, area: np.ndarray,
+                      corners: np.ndarray, material) -> np.ndarray:
+    """Stretch + shear energy of each triangle, J, ``(t,)`` (design §2).
+
+    Args:
+        coef_u, coef_v, area: from :func:`triangle_maps`.
+        corners: ``(t, 3, 3)`` positions of each triangle's corners, m.
+        material: with ``stretch_stiffness`` and ``shear_stiffness`` (N/m).
+    """
+    wu = np.einsum("tk,tkd->td", coef_u, corners)
+    wv = np.einsum("tk,tkd->td", coef_v, corners)
+    len_u, len_v = np.sqrt(_dot(wu, wu)), np.sqrt(_dot(wv, wv))
+    return 0.5 * area * (material.stretch_stiffness * ((len_u - 1.0)**2 + (len_v - 1.0)**2)
+                         + material.shear_stiffness * _dot(wu, wv)**2)
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:

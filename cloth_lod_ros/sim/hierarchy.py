@@ -42,7 +42,29 @@ import numpy as np
 
 from .mesh48 import MeshError, RestMesh
 
-__all__ = ["Split", "Merge", "Hierarchy48"]
+__all__ = ["Split", "Merge", "Hierarchy48", "merge_velocity_change"]
+
+
+def merge_velocity_change(mass_mid, mass_ends, v_mid: np.ndarray, v_left: np.ndarray,
+                          v_right: np.ndarray) -> np.ndarray:
+    """Velocity change, m/s, that a merge gives both ends of the edge (design §2).
+
+    The removed particle's mass goes to the two ends equally; adding the same
+    ``Δv = m_mid (v_mid − ½(v_left + v_right)) / (m_left' + m_right')`` to both
+    keeps the momentum.  Zero when the midpoint moves with the ends' average.
+
+    Args:
+        mass_mid: ``()`` or ``(k,)`` mass of the removed particle.
+        mass_ends: ``()`` or ``(k,)`` the ends' total mass *after* the merge
+            (same unit as ``mass_mid``: kg or mass units).
+        v_mid, v_left, v_right: ``(3,)`` or ``(k, 3)`` velocities, m/s.
+
+    Returns:
+        ``(3,)`` or ``(k, 3)``.
+    """
+    mass_mid = np.asarray(mass_mid, dtype=float)[..., None]
+    mass_ends = np.asarray(mass_ends, dtype=float)[..., None]
+    return mass_mid * (v_mid - 0.5 * (v_left + v_right)) / mass_ends
 
 
 def _key(a: int, b: int) -> tuple[int, int]:
@@ -302,10 +324,10 @@ class Hierarchy48:
             self._activate(t, time)
         # Momentum: m's mass went back to the edge ends (equally); give both the
         # same velocity change so that Σ m v is unchanged.
-        defect = mass_m * (self.v[m] - 0.5 * (self.v[left] + self.v[right]))
-        gained = self.mass_units[left] + self.mass_units[right]
-        if np.any(defect != 0.0):
-            self.v[[left, right]] += defect / gained
+        change = merge_velocity_change(mass_m, self.mass_units[left] + self.mass_units[right],
+                                       self.v[m], self.v[left], self.v[right])
+        if np.any(change != 0.0):
+            self.v[[left, right]] += change
         self.vertex_active[m] = False
         self.mass_units[m] = 0.0
         self.vertex_edge[m] = -1

@@ -19,7 +19,17 @@ flat pair from that arc is ``d = L (1 − cos(θ/2)) / (2 sin(θ/2))``, which is
   ``k_b c_e θ ∂θ/∂x``, so both are tested (``max_hinge_rate``, ``max_bend_force``);
   (c) each child triangle has existed for at least ``min_lifetime`` seconds
   (hysteresis against refine/simplify cycles; it never delays refinement);
-  (d) no pin or contact holds the midpoint particle.
+  (d) no pin or contact holds the midpoint particle;
+  (e) the merge adds to the cloth's total energy (elastic + kinetic + gravity,
+  :mod:`cloth_lod_ros.sim.merge_energy`) at most what would move its diamond
+  at ``max_merge_speed``: ``ΔE ≤ ½ ρ A v²`` (ρ the areal density, A the
+  diamond's rest area).  The hinge tests see bending only: a diamond stretched
+  or sheared in its plane has flat hinges, but its coarse triangles replace
+  the path through m by the chord and its stretch energy jumps (up to +0.96 mJ
+  per merge measured on ``hang_two_corners`` before this test; design §4).
+  Scaling the bound with the diamond's mass bounds the kick a merge gives,
+  the same on every level: a fixed number of joules would be a large kick to
+  a small fine diamond and a strict limit on a large coarse one.
 """
 
 from __future__ import annotations
@@ -30,6 +40,7 @@ import numpy as np
 
 from .forces import Elements, hinge_angles
 from .hierarchy import Hierarchy48, Merge
+from .merge_energy import merge_energy_change, merge_kinetic_change
 
 __all__ = ["HingeMeasures", "hinge_measures", "curvature_estimate", "LodPolicy",
            "LodDecision"]
@@ -51,12 +62,13 @@ class HingeMeasures:
 
     Attributes:
         deviation: d in m; rate: dθ/dt in rad/s; bend_force: largest bend force
-        on the hinge's four particles, N.
+        on the hinge's four particles, N; angle: θ in rad.
     """
 
     deviation: np.ndarray
     rate: np.ndarray
     bend_force: np.ndarray
+    angle: np.ndarray
 
 
 def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
@@ -70,7 +82,7 @@ def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
     hv = elements.hinge_vertices
     if len(hv) == 0:
         empty = np.zeros(0)
-        return HingeMeasures(empty, empty, empty)
+        return HingeMeasures(empty, empty, empty, empty)
     if evaluation is not None:
         theta, grad = evaluation.hinge_angle, evaluation.hinge_gradient
     else:
@@ -79,15 +91,23 @@ def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
     height = 0.5 * (1.0 / grad_norm[:, 2] + 1.0 / grad_norm[:, 3])
     rate = np.einsum("hkd,hkd->h", grad, v[hv])
     force = bend_stiffness * elements.hinge_weight * np.abs(theta) * grad_norm.max(axis=1)
-    return HingeMeasures(curvature_estimate(theta, height), rate, force)
+    return HingeMeasures(curvature_estimate(theta, height), rate, force, theta)
 
 
 @dataclass
 class LodDecision:
-    """Pool triangle ids to refine (most curved first) and split edges to merge."""
+    """Pool triangle ids to refine (most curved first) and split edges to merge.
+
+    ``merge_energy``, ``merge_kinetic`` and ``merge_bound`` (``(len(merge),)``,
+    J) are the energy each merge was tested to add, its kinetic part and the
+    most it may add.
+    """
 
     refine: list
     merge: list
+    merge_energy: np.ndarray | None = None
+    merge_kinetic: np.ndarray | None = None
+    merge_bound: np.ndarray | None = None
 
 
 class LodPolicy:
@@ -95,16 +115,19 @@ class LodPolicy:
 
     Args:
         config: :class:`cloth_lod_ros.sim.config.LodConfig`.
-        bend_stiffness: k_b of the material, N·m (for the bend-force test).
+        material: :class:`cloth_lod_ros.sim.config.MaterialConfig` (k_b for the
+            bend-force test, all stiffnesses for the merge energy test).
+        gravity: ``(3,)`` m/s² (for the merge energy test).
     """
 
-    def __init__(self, config, bend_stiffness: float):
+    def __init__(self, config, material, gravity=(0.0, 0.0, 0.0)):
         self.config = config
-        self.bend_stiffness = bend_stiffness
+        self.material = material
+        self.gravity = np.asarray(gravity, dtype=float)
 
     def decide(self, hierarchy: Hierarchy48, elements: Elements, vertex_ids: np.ndarray,
-               triangle_ids: np.ndarray, x: np.ndarray, v: np.ndarray, time: float,
-               held: np.ndarray, detail_points: np.ndarray | None = None,
+               triangle_ids: np.ndarray, x: np.ndarray, v: np.ndarray, masses: np.ndarray,
+               time: float, held: np.ndarray, detail_points: np.ndarray | None = None,
                in_contact: np.ndarray | None = None, supported=None,
                evaluation=None) -> LodDecision:
         """Choose operations for the active mesh described by the compact arrays.
@@ -113,7 +136,8 @@ class LodPolicy:
             hierarchy: the mesh being adapted (read only here).
             elements: rest data of the compact mesh.
             vertex_ids, triangle_ids: pool ids of the compact vertices/triangles.
-            x, v: ``(n, 3)`` compact positions and velocities.
+            x, v: ``(n, 3)`` compact positions (m) and velocities (m/s).
+            masses: ``(n,)`` compact masses, kg.
             time: simulation time, s.
             held: pool ids of particles held by pins or grasps (never merged).
             detail_points: ``(k, 2)`` (u, v) points (closed grasps) around which
@@ -127,7 +151,7 @@ class LodPolicy:
                 angles and gradients.
         """
         cfg = self.config
-        measures = hinge_measures(elements, self.bend_stiffness, x, v, evaluation)
+        measures = hinge_measures(elements, self.material.bend_stiffness, x, v, evaluation)
         hinge_tris = elements.hinge_triangles
         # Refine: both triangles of each over-curved hinge, most curved first.
         over = np.flatnonzero(measures.deviation > cfg.refine_threshold)
@@ -143,7 +167,7 @@ class LodPolicy:
             refine = candidates[np.sort(first)].tolist()
 
         # Simplify: split particles all of whose hinges are flat and settled.
-        merge = []
+        merge, energy, kinetic, bound = [], np.zeros(0), np.zeros(0), np.zeros(0)
         vertices, kids = hierarchy.split_vertices()
         if len(vertices):
             unsettled = ((measures.deviation >= cfg.coarsen_threshold)
@@ -163,8 +187,17 @@ class LodPolicy:
                 ok &= ~(near & (child_level - 1 < cfg.detail_level))
             if supported is not None and ok.any():
                 ok[ok] &= ~supported(vertices[ok])
-            merge = [(int(a), int(b)) for a, b in hierarchy.vertex_edge[vertices[ok]]]
-        return LodDecision(refine=refine, merge=merge)
+            # (e) the merge adds at most ½ ρ A v² (elastic + kinetic + gravity).
+            keep = np.flatnonzero(ok)
+            added = merge_energy_change(hierarchy, elements, vertex_ids, triangle_ids,
+                                        vertices[keep], x, v, masses, self.material,
+                                        self.gravity, hinge_angle=measures.angle)
+            bound = 0.5 * self.material.density * added.area * cfg.max_merge_speed**2
+            low = added.total <= bound
+            keep = keep[low]
+            merge = [(int(a), int(b)) for a, b in hierarchy.vertex_edge[vertices[keep]]]
+            energy, kinetic, bound = added.total[low], added.kinetic[low], bound[low]
+        return LodDecision(refine, merge, energy, kinetic, bound)
 
     def _detail_triangles(self, elements, hierarchy, triangle_ids, detail_points,
                           in_contact) -> np.ndarray:
@@ -187,29 +220,60 @@ class LodPolicy:
               log: list | None = None) -> tuple[int, int]:
         """Carry out a decision; returns ``(splits, merges)`` performed.
 
-        Refinements go first (forced splits may make a planned merge invalid,
-        which is then skipped); merges only touch all-leaf diamonds, which
-        keeps the mesh conforming.  With ``log``, every operation performed is
+        Refinements go first; merges only touch all-leaf diamonds, which keeps
+        the mesh conforming.  The energy a merge adds was tested on the state
+        before the decision (:func:`~cloth_lod_ros.sim.merge_energy.merge_energy_change`).
+        An earlier operation of the same decision changes it in two ways only:
+        through the mass or velocity of one of its edge ends (its kinetic part
+        is then computed again, and the merge skipped if the total now exceeds
+        its bound), or by replacing a triangle across one of its diamond's
+        outer edges (the merge is skipped).  So every merge adds at most its
+        bound.  A skipped merge, or one a split made invalid, is decided again
+        at the next check.  With ``log``, every operation performed is
         appended to it in order (undo: apply their inverses in reverse).
         """
-        splits = 0
+        moved: set[int] = set()          # particles whose mass or velocity changed
+        changed: set = set()             # edges whose triangles were replaced
+        splits = []
         for t in decision.refine:
-            ops = hierarchy.refine(int(t), time)
-            splits += len(ops)
-            if log is not None:
-                log.extend(ops)
+            for op in hierarchy.refine(int(t), time):
+                splits.append(op)
+                if log is not None:
+                    log.append(op)
+                moved.update(op.edge)
+                for parent in hierarchy.vertex_parents[hierarchy.midpoint[op.edge]]:
+                    if parent >= 0:
+                        changed.update(_edges(hierarchy.tri[parent]))
         merges = 0
-        for edge in decision.merge:
+        for i, edge in enumerate(decision.merge):
             m = hierarchy.midpoint.get(edge)
             if m is None:
                 continue
+            if moved.intersection(edge) and decision.merge_energy is not None:
+                # An end's mass or velocity changed: the kinetic part, again.
+                particles = [m, *edge]
+                kinetic = merge_kinetic_change(
+                    hierarchy.mass_units[particles][None] * hierarchy.unit_mass,
+                    hierarchy.v[particles][None])[0]
+                if (decision.merge_energy[i] - decision.merge_kinetic[i] + kinetic
+                        > decision.merge_bound[i]):
+                    continue
             parents = [t for t in hierarchy.vertex_parents[m] if t >= 0]
-            if hierarchy.tri_active[hierarchy.children[parents]].all():
+            outer = [e for t in parents for e in _edges(hierarchy.tri[t])[::2]]
+            if hierarchy.tri_active[hierarchy.children[parents]].all() and changed.isdisjoint(outer):
                 hierarchy.apply(Merge(edge), time)
                 merges += 1
                 if log is not None:
                     log.append(Merge(edge))
-        return splits, merges
+                moved.update(edge)
+                changed.update(outer)
+        return len(splits), merges
+
+
+def _edges(corners) -> list:
+    """Sorted vertex pairs of a triangle ``(apex, left, right)``: leg, hypotenuse, leg."""
+    a, b, c = (int(i) for i in corners)
+    return [(min(a, b), max(a, b)), (min(b, c), max(b, c)), (min(c, a), max(c, a))]
 
 
 
