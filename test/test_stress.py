@@ -111,13 +111,14 @@ def test_thrashing_without_hysteresis_is_caught():
     particle; with the corners held over patches, removing only the minimum
     lifetime gave 5.4, barely over the bound; with point pins it gave 10.)"""
     case = CASE["near_equal_thresholds"]
-    # The checker is what is tested: without any hysteresis and with the paper's
-    # integrator (first order, with its numerical damping) this case thrashes.
+    # The checker is what is tested: without any hysteresis, and in vacuum so
+    # that the cloth keeps swinging, this case thrashes (measured 7.1/s; 6.1 with
+    # the face air drag; the paper's damped step in air, 4.7).
     no_hysteresis = dataclasses.replace(
         case, overrides={**case.overrides, "lod.min_lifetime": 0.0,
                          "lod.max_merge_speed": 100.0,
                          "lod.max_hinge_rate": 1e3, "lod.max_bend_force": 1e3,
-                         "simulation.integrator": "baraff_witkin"})
+                         "air.density": 0.0})
     result = run_case(no_hysteresis, lod=True, quick=True)
     assert not result.passed
     assert [f.split(":")[0] for f in result.failures] == ["topology"]
