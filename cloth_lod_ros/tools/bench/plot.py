@@ -38,8 +38,9 @@ def plot(path: Path, result: dict) -> None:
     own = ref.get("own_error") or {}
     panels = [("rms_frac_motion", "motion", "during motion: RMS over t = "
                + ", ".join(f"{t:.3g}" for t in s["times"]) + " s"),
-              ("rms_frac_rest", "rest", f"at rest (t = {result['rest']['time']:.3g} s); "
-               "hollow: settled into another shape")]
+              ("rms_frac_rest", "rest", f"at rest (t = {result['rest']['time']:.3g} s"
+               + ("" if result["rest"]["at_rest"] else ": the cap, not at rest")
+               + "); hollow: settled into another shape")]
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.6))
     colours = {}
     for ax, (key, own_key, title) in zip(axes, panels):
