@@ -237,11 +237,11 @@ def rest_shape_section(rows: list[dict]) -> list[str]:
             "the reference at rest and the offset there. ")
     if others:
         text += (f"{len(others)} run{'s' if len(others) > 1 else ''} (†) "
-                 f"{'have' if len(others) > 1 else 'has'} the largest distance at rest over "
-                 "twice the largest while moving: not a small drift but a different "
+                 f"{'show' if len(others) > 1 else 'shows'} the signs of a different "
                  "equilibrium (the hanging cloth has two; the offsets show where and which "
-                 "way). For those, the at-rest numbers compare which shape a run fell into, "
-                 "not how accurate it is.")
+                 "way): for those, the at-rest numbers compare which shape a run fell into, "
+                 "not how accurate it is. The test is a heuristic: runs with the same "
+                 "farthest point and offset as a † run are likely in the same shape.")
     else:
         text += "No run settled into a visibly different shape."
     return ([text, ""] + table(["run", "RMS at rest", "max at rest", "max during motion",

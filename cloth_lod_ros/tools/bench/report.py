@@ -179,9 +179,10 @@ def _results(result: dict) -> list[str]:
         md[-1] += (f" Uniform L{result['reference']['level']} runs share the reference's mesh: "
                    "their error is the time integration's alone.")
     if any(other(r) for r in rows):
-        md += ["", "† settled into another shape than the reference (its largest distance at "
-               "rest is more than twice its largest distance during motion); see \"At rest: "
-               "which shape\" below."]
+        md += ["", "† settled into another shape than the reference: its largest distance at "
+               "rest is more than twice its largest distance during motion, or it is a uniform "
+               "run on the reference's mesh and at rest it is farther from the reference than "
+               "the reference's own mesh error; see \"At rest: which shape\" below."]
     same = same_computations(rows)
     if same:
         md += ["", "Same computation, different labels: " + "; ".join(

@@ -10,7 +10,7 @@ import numpy as np
 from ..reference import self_error
 from .analysis import time_tag
 
-__all__ = ["config_row", "reference_summary", "paper_row"]
+__all__ = ["config_row", "reference_summary", "paper_row", "flag_other_shapes"]
 
 
 def _rms_motion(values: list) -> float | None:
@@ -170,3 +170,23 @@ def paper_row(rows: list[dict], runs: dict, scene) -> dict | None:
                 adaptive_rms_motion=ada["rms_frac_motion"], adaptive_rms_rest=ada["rms_frac_rest"],
                 uniform_rms_motion=uni["rms_frac_motion"], uniform_rms_rest=uni["rms_frac_rest"],
                 adaptive_config=ada["config"], uniform_config=uni["config"])
+
+
+def flag_other_shapes(result: dict) -> None:
+    """Mark ``rest_other_shape`` on the rows of ``result`` (in place).
+
+    Two signs that a run came to rest in another equilibrium than the
+    reference (the hanging cloth has two): its largest distance at rest is
+    over twice its largest during motion; or, against a converged reference,
+    it is a uniform run on the reference's own mesh - no mesh error, and at
+    rest the integrator does not change the equilibrium - and its RMS distance
+    at rest exceeds the reference's own mesh error estimate there.
+    """
+    ref = result["reference"]
+    mesh = (ref.get("own_error") or {}).get("rest", {}).get("mesh_rms")
+    for row in result["rows"]:
+        other = row["max_frac_rest"] > 2.0 * row["max_frac_motion"]
+        if (ref["mode"] == "converged" and mesh and row["kind"] == "uniform"
+                and row["level"] == ref["level"]):
+            other = other or row["rms_frac_rest"] > mesh
+        row["rest_other_shape"] = bool(other)

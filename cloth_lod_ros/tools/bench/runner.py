@@ -61,7 +61,7 @@ from .plan import (FULL, QUICK, REFERENCE_KINDS, BenchError, configurations, fam
                    parse_scheme)
 from .plot import plot, write_csv
 from .report import PAPER, markdown
-from .rows import config_row, paper_row, reference_summary
+from .rows import config_row, flag_other_shapes, paper_row, reference_summary
 from .worker import run_spec_file
 
 __all__ = ["add_arguments", "run", "main", "BenchError", "PAPER"]
@@ -422,6 +422,7 @@ def run(args) -> int:
 def _render(result: dict, out: Path) -> None:
     """Write bench.csv, bench.png, bench.md and bench.json from ``result``."""
     out.mkdir(parents=True, exist_ok=True)
+    flag_other_shapes(result)
     write_csv(out / "bench.csv", result["rows"])
     plot(out / "bench.png", result)
     (out / "bench.md").write_text(markdown(result))
