@@ -72,6 +72,7 @@ def test_converged_reference_is_the_default_and_reports_its_own_error(tiny):
     ref = data["reference"]
     assert ref["mode"] == "converged" and ref["integrator"] == "sdirk2"
     assert ref["level"] == 2 and ref["divisor"] == 8          # the finest level asked, h/8
+    assert {r["reference"] for r in data["rows"]} == {"converged"}
     assert ref["time_step"] == pytest.approx(H / 8)
     assert ref["newton_iterations"] == 3 and ref["newton_tolerance"] == pytest.approx(1e-8)
     assert set(ref["runs"]) == {"reference", "reference_2h", "reference_coarse"}
@@ -190,6 +191,10 @@ def test_same_step_reference_is_an_option_and_is_labelled(tmp_path):
     for key in error_keys(ref):
         assert ref[key] == 0.0, key                        # the reference against itself
     assert rows["baraff_witkin_uniform_L0"]["rms_frac_motion"] > 0
+    assert {r["reference"] for r in data["rows"]} == {"same-step reference (mesh error only)"}
+    with (tmp_path / "bench.csv").open() as fh:                    # the CSV says so too
+        assert {r["reference"] for r in csv.DictReader(fh)} == {
+            "same-step reference (mesh error only)"}
     md = (tmp_path / "bench.md").read_text()
     assert "same-step reference (mesh error only)" in md
     assert md.count("same-step reference (mesh error only)") >= 3    # set-up and every table

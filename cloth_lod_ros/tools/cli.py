@@ -399,7 +399,8 @@ def build_parser() -> argparse.ArgumentParser:
     play.set_defaults(func=_cmd_play)
     for name, module_name, text in (
             ("view", "view", "animate a recorded bag or a headless run of a scene (GIF)"),
-            ("bench", "bench", "speed against error: uniform levels and adaptive thresholds"),
+            ("bench", "bench", "speed against error from the converged motion: integrators "
+                               "x uniform levels and the adaptive mesh"),
             ("stress", "stress", "hard-case stability suite: one table, pass/fail")):
         module = importlib.import_module(f"cloth_lod_ros.tools.{module_name}")
         command = sub.add_parser(name, help=text)

@@ -21,11 +21,13 @@ def _rms_motion(values: list) -> float | None:
 
 
 def config_row(cfg: dict, runs: list[dict], reference: np.ndarray, times: list[float],
-               side: float, points: np.ndarray, family: dict | None) -> dict:
+               side: float, points: np.ndarray, family: dict | None,
+               reference_label: str = "converged") -> dict:
     """One table row: cost over the repeats and error of the first repeat.
 
     ``reference``: (k, m, 3) reference samples at ``times`` and at rest (m);
-    ``points``: (m, 2) their material coordinates (m).
+    ``points``: (m, 2) their material coordinates (m); ``reference_label``:
+    what the errors are measured against (the ``reference`` column).
     """
     first = runs[0]
     sampled = np.asarray(first["samples"], dtype=float)
@@ -44,7 +46,8 @@ def config_row(cfg: dict, runs: list[dict], reference: np.ndarray, times: list[f
     c = first["cost"]
     frames = c["steps"]
     row = dict(
-        config=cfg["key"], label=cfg["label"], kind=cfg["kind"], family=cfg["family"],
+        config=cfg["key"], label=cfg["label"], reference=reference_label, kind=cfg["kind"],
+        family=cfg["family"],
         integrator=family["integrator"] if family else "",
         error_tolerance_m=family["tolerance"] if family else 0.0,
         level=cfg["level"], refine_threshold_m=cfg["threshold"],

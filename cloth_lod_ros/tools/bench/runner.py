@@ -391,7 +391,8 @@ def run(args) -> int:
                         if c["kind"] == "same_step" and c["family"] == cfg["family"]))
         ref_samples = np.asarray(runs[ref_key][0]["samples"], dtype=float)
         rows.append(config_row(cfg, runs[cfg["key"]], ref_samples, times, side, points,
-                               fams[cfg["family"]]))
+                               fams[cfg["family"]],
+                               "converged" if reference else SAME_STEP_LABEL))
     if reference:
         ref_info = dict(reference.as_dict(), mesh_check=bool(args.mesh_check),
                         **reference_summary(configs, runs, times, side))
@@ -423,6 +424,9 @@ def _render(result: dict, out: Path) -> None:
     """Write bench.csv, bench.png, bench.md and bench.json from ``result``."""
     out.mkdir(parents=True, exist_ok=True)
     flag_other_shapes(result)
+    label = "converged" if result["reference"]["mode"] == "converged" else SAME_STEP_LABEL
+    for row in result["rows"]:          # files written before the column existed
+        row.setdefault("reference", label)
     write_csv(out / "bench.csv", result["rows"])
     plot(out / "bench.png", result)
     (out / "bench.md").write_text(markdown(result))
