@@ -17,11 +17,17 @@ from cloth_lod_ros.tools import bench
 REPO = Path(__file__).resolve().parent.parent
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 NEVER = 10.0        # m: a refine threshold no hanging 1 m cloth can reach
-# Tiny: levels 0-2 of the 4 x 4 base, 0.1 s timed, rest capped at 0.2 s,
-# two repeats (so the repeat logic runs), a 5 x 5 sample grid.
-TINY = ["hang_two_corners", "--quick", "--levels", "0", "1", "2", "--max-levels", "2",
-        "--thresholds", str(NEVER), "0.001", "--repeats", "2", "--duration", "0.1",
-        "--rest-cap", "0.2", "--rest-window", "0.05", "--grid", "5", "--quiet"]
+# Tiny: two families (the paper's step and sdirk2 under error control) on
+# levels 0 and 2 of the 4 x 4 base and adaptive max level 2, 0.1 s timed, rest
+# capped at 0.2 s, two repeats (so the repeat logic runs), a 5 x 5 sample
+# grid; the converged reference is uniform L2 at h/8, with its runs at h/4
+# and at L1.
+TINY = ["hang_two_corners", "--quick", "--schemes", "baraff_witkin", "sdirk2@1e-3",
+        "--levels", "0", "2", "--max-levels", "2", "--thresholds", str(NEVER), "0.001",
+        "--repeats", "2", "--duration", "0.1", "--rest-cap", "0.2", "--rest-window", "0.05",
+        "--grid", "5", "--quiet"]
+H = 1 / 60
+FAMILIES = ("baraff_witkin", "sdirk2_tol0.001")
 
 
 @pytest.fixture(scope="module")
@@ -52,10 +58,49 @@ def test_quick_tiny_run_writes_all_four_files(tiny):
         assert (out / name).stat().st_size > 100, name
     assert (out / "bench.png").read_bytes()[:8] == PNG_MAGIC
     md = (out / "bench.md").read_text()
-    for heading in ("## Set-up", "## What \"converged\" means", "## Results",
-                    "## The paper's comparison on our code", "## Does adaptive beat uniform?"):
+    for heading in ("## Set-up", "## The reference's own error", "## Results",
+                    "## Speed against error", "## The paper's comparison on our code",
+                    "## Does adaptive beat uniform?"):
         assert heading in md, heading
     assert "cloth-lod bench hang_two_corners --quick" in md      # the command to reproduce
+    assert "--schemes baraff_witkin sdirk2@1e-3" in md
+    assert "same-step" not in md
+
+
+def test_converged_reference_is_the_default_and_reports_its_own_error(tiny):
+    _, out, data, _ = tiny
+    ref = data["reference"]
+    assert ref["mode"] == "converged" and ref["integrator"] == "sdirk2"
+    assert ref["level"] == 2 and ref["divisor"] == 8          # the finest level asked, h/8
+    assert {r["reference"] for r in data["rows"]} == {"converged"}
+    assert ref["time_step"] == pytest.approx(H / 8)
+    assert ref["newton_iterations"] == 3 and ref["newton_tolerance"] == pytest.approx(1e-8)
+    assert set(ref["runs"]) == {"reference", "reference_2h", "reference_coarse"}
+    assert ref["runs"]["reference_coarse"]["level"] == 1
+    # The workers really ran at h_ref and 2 h_ref, once each.
+    runs = data["runs"]
+    assert [r["time_step"] for r in runs["reference_L2"]] == [pytest.approx(H / 8)]
+    assert [r["time_step"] for r in runs["reference_L2_2h"]] == [pytest.approx(H / 4)]
+    assert [r["time_step"] for r in runs["reference_L1"]] == [pytest.approx(H / 8)]
+    own = ref["own_error"]
+    for tag in ("0.03333s", "0.05s", "0.1s", "motion"):
+        assert own[tag]["time_rms"] >= 0 and math.isfinite(own[tag]["time_rms"]), tag
+        assert own[tag]["time_max"] >= own[tag]["time_rms"]
+        assert own[tag]["mesh_rms"] > 0, tag                   # L1 differs from L2
+    assert own["rest"]["time_rms"] is None and own["rest"]["mesh_rms"] > 0
+    md = (out / "bench.md").read_text()
+    assert "Reference: the converged motion" in md
+    assert "The converged reference's own error" in md
+    assert md.count("The converged reference's own error") >= 3   # under every table
+    # Every configuration is measured against it: even the uniform runs on the
+    # reference's own mesh are not at distance 0 (another integrator and step).
+    rows = by_config(data["rows"])
+    for fam in FAMILIES:
+        assert rows[f"{fam}_uniform_L2"]["rms_frac_motion"] > 0, fam
+    # The paper's linearised step is farther from the converged motion than
+    # sdirk2 under error control on the same mesh (time error, not mesh error).
+    assert (rows["baraff_witkin_uniform_L2"]["rms_frac_motion"]
+            > 5 * rows["sdirk2_tol0.001_uniform_L2"]["rms_frac_motion"])
 
 
 def test_csv_and_json_rows_agree(tiny):
@@ -76,28 +121,22 @@ def test_csv_and_json_rows_agree(tiny):
 def test_configurations_and_machine_recorded(tiny):
     _, _, data, _ = tiny
     rows = by_config(data["rows"])
-    assert set(rows) == {"uniform_L0", "uniform_L1", "uniform_L2", "uniform_L2_half_step",
-                         f"adaptive_L2_{NEVER * 1e3:g}mm", "adaptive_L2_1mm"}
-    assert rows["uniform_L2"]["kind"] == "reference"
-    assert rows["uniform_L2_half_step"]["time_step_s"] == pytest.approx(1 / 120)
+    assert set(rows) == {f"{fam}_{mesh}" for fam in FAMILIES
+                         for mesh in ("uniform_L0", "uniform_L2", f"adaptive_L2_{NEVER * 1e3:g}mm",
+                                      "adaptive_L2_1mm")}
+    assert {r["kind"] for r in rows.values()} == {"uniform", "adaptive"}
+    assert rows["baraff_witkin_uniform_L2"]["integrator"] == "baraff_witkin"
+    assert rows["sdirk2_tol0.001_adaptive_L2_1mm"]["error_tolerance_m"] == 0.001
     machine = data["machine"]
     for key in ("cpu_model", "logical_cpus", "python", "numpy", "scipy", "date"):
         assert machine[key], key
-    # Every worker ran pinned to the one CPU, with one repeat per round.
+    # Every worker ran pinned to the one CPU; the reference runs once, the
+    # configurations once per round.
     for key, runs in data["runs"].items():
-        assert len(runs) == (1 if key.endswith("half_step") else 2), key
+        assert len(runs) == (1 if key.startswith("reference") else 2), key
         assert all(r["cpu"] == [machine["pinned_cpu"]] for r in runs), key
     rest = data["rest"]
     assert rest["time"] == pytest.approx(0.2) and rest["at_rest"] is False   # capped
-
-
-def test_reference_against_itself_is_zero(tiny):
-    _, _, data, _ = tiny
-    ref = by_config(data["rows"])["uniform_L2"]
-    for key in error_keys(ref):
-        assert ref[key] == 0.0, key
-    for row in data["rows"]:                   # same inputs, one thread: repeats agree
-        assert row["repeat_max_deviation_m"] == 0.0, row["config"]
 
 
 def test_rows_have_non_negative_errors_and_finite_costs(tiny):
@@ -106,26 +145,75 @@ def test_rows_have_non_negative_errors_and_finite_costs(tiny):
         for key in error_keys(row):
             assert math.isfinite(row[key]) and row[key] >= 0.0, (row["config"], key)
         for key in ("wall_per_sim_s_median", "wall_per_sim_s_min", "wall_per_sim_s_max",
-                    "cpu_per_sim_s_median", "ms_per_step_median"):
+                    "cpu_per_sim_s_median", "ms_per_frame_median"):
             assert math.isfinite(row[key]) and row[key] > 0.0, (row["config"], key)
         assert row["wall_per_sim_s_min"] <= row["wall_per_sim_s_median"] \
             <= row["wall_per_sim_s_max"]
         assert row["vertex_steps"] > 0 and row["cg_iterations"] >= 0
-        assert row["solves_per_step"] >= 1 and row["solver"]
+        assert row["substeps_per_frame"] >= 1 and row["rejected_steps"] >= 0
+        assert row["solves_per_frame"] >= row["newton_iterations_per_frame"] >= 1
+        assert row["solver"]
         assert 0.0 <= row["lod_share_median"] < 1.0
+        assert row["repeat_max_deviation_m"] == 0.0, row["config"]   # one thread: repeats agree
     rows = by_config(data["rows"])
-    assert rows["uniform_L1"]["rms_frac_motion"] > 0.0      # a coarser mesh differs
-    assert rows["adaptive_L2_1mm"]["lod_share_median"] > 0.0
-    assert rows["uniform_L0"]["lod_share_median"] == 0.0
+    assert rows["baraff_witkin_uniform_L0"]["rms_frac_motion"] > 0.0
+    assert rows["baraff_witkin_adaptive_L2_1mm"]["lod_share_median"] > 0.0
+    assert rows["baraff_witkin_uniform_L0"]["lod_share_median"] == 0.0
+    # One linearised solve per frame for the paper's step; two stages for sdirk2.
+    paper = rows["baraff_witkin_uniform_L2"]
+    assert paper["substeps_per_frame"] == 1 and paper["solves_per_frame"] == 1
+    assert rows["sdirk2_tol0.001_uniform_L2"]["newton_iterations_per_frame"] >= 2
 
 
 def test_adaptive_that_never_refines_has_the_base_level_error(tiny):
     _, _, data, _ = tiny
     rows = by_config(data["rows"])
-    never, base = rows[f"adaptive_L2_{NEVER * 1e3:g}mm"], rows["uniform_L0"]
-    assert never["splits"] == 0 and never["triangles_max"] == 32     # the 4 x 4 base
-    for key in error_keys(never):
-        assert never[key] == pytest.approx(base[key], rel=1e-9, abs=1e-12), key
+    for fam in FAMILIES:
+        never, base = rows[f"{fam}_adaptive_L2_{NEVER * 1e3:g}mm"], rows[f"{fam}_uniform_L0"]
+        assert never["splits"] == 0 and never["triangles_max"] == 32     # the 4 x 4 base
+        for key in error_keys(never):
+            assert never[key] == pytest.approx(base[key], rel=1e-9, abs=1e-12), (fam, key)
+
+
+def test_same_step_reference_is_an_option_and_is_labelled(tmp_path):
+    code = bench.main(["hang_two_corners", "--quick", "--reference", "same-step",
+                       "--schemes", "baraff_witkin", "--levels", "0", "2", "--max-levels", "2",
+                       "--repeats", "1", "--duration", "0.1", "--rest-cap", "0.2",
+                       "--rest-window", "0.05", "--grid", "5", "--quiet", "--out", str(tmp_path)])
+    assert code == 0
+    data = json.loads((tmp_path / "bench.json").read_text())
+    assert data["reference"]["mode"] == "same-step"
+    assert data["reference"]["label"] == "same-step reference (mesh error only)"
+    assert not any(key.startswith("reference") for key in data["runs"])   # no converged runs
+    rows = by_config(data["rows"])
+    ref = rows["baraff_witkin_uniform_L2"]
+    assert ref["kind"] == "same_step"
+    for key in error_keys(ref):
+        assert ref[key] == 0.0, key                        # the reference against itself
+    assert rows["baraff_witkin_uniform_L0"]["rms_frac_motion"] > 0
+    assert {r["reference"] for r in data["rows"]} == {"same-step reference (mesh error only)"}
+    with (tmp_path / "bench.csv").open() as fh:                    # the CSV says so too
+        assert {r["reference"] for r in csv.DictReader(fh)} == {
+            "same-step reference (mesh error only)"}
+    md = (tmp_path / "bench.md").read_text()
+    assert "same-step reference (mesh error only)" in md
+    assert md.count("same-step reference (mesh error only)") >= 3    # set-up and every table
+    assert "--reference same-step" in md
+    assert "The reference's own error" not in md
+
+
+def test_dry_run_lists_the_documented_plan(capsys):
+    assert bench.main(["--quick", "--dry-run"]) == 0
+    lines = [line.split("\t") for line in capsys.readouterr().out.strip().splitlines()]
+    kinds = [line[1] for line in lines]
+    assert kinds[:3] == ["reference", "reference_2h", "reference_coarse"]
+    assert kinds.count("uniform") == 3 * 2 and kinds.count("adaptive") == 3
+    assert {line[2] for line in lines[3:]} == {"2"}       # quick: two repeats
+    assert "simulation.integrator=baraff_witkin" in lines[3][4]
+    assert bench.main(["--dry-run"]) == 0                  # the full run: 5 families x 4
+    lines = [line.split("\t") for line in capsys.readouterr().out.strip().splitlines()]
+    assert len(lines) == 3 + 5 * 4
+    assert "cloth.level=6" in lines[0][4] and "simulation.newton_iterations=3" in lines[0][4]
 
 
 @pytest.mark.parametrize("extra, message", [
@@ -135,6 +223,11 @@ def test_adaptive_that_never_refines_has_the_base_level_error(tiny):
     (["--levels", "2", "4", "--reference-level", "3"], "finer than the reference level"),
     (["--thresholds", "0"], "positive"),
     (["--repeats", "0"], "at least 1"),
+    (["--schemes", "rk4"], "unknown integrator"),
+    (["--schemes", "sdirk2@-1"], "must be >= 0"),
+    (["--schemes", "sdirk2@fast"], "length in metres"),
+    (["--schemes", "sdirk2", "sdirk2@0"], "given twice"),
+    (["--reference-divisor", "0"], "at least 1"),
     (["--set", "cloth.width=-1"], "scene error"),
 ])
 def test_bad_arguments_exit_2_with_a_message(tmp_path, capsys, extra, message):
@@ -143,6 +236,13 @@ def test_bad_arguments_exit_2_with_a_message(tmp_path, capsys, extra, message):
     assert code == 2
     assert message in err and "Traceback" not in err
     assert not (tmp_path / "bench.csv").exists()
+
+
+def test_bad_reference_mode_exits_2(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        bench.main(["--quick", "--reference", "finest", "--out", str(tmp_path)])
+    assert exc.value.code == 2
+    assert "invalid choice" in capsys.readouterr().err
 
 
 def test_unknown_scene_from_the_command_line(tmp_path):
@@ -165,6 +265,7 @@ def test_add_arguments_and_run_are_the_module_api(tmp_path, capsys):
     assert "unknown scene" in capsys.readouterr().err
     defaults = parser.parse_args([])
     assert defaults.scene == "hang_two_corners" and not defaults.quick
+    assert defaults.reference == "converged" and defaults.mesh_check
 
 
 def test_from_json_rewrites_the_same_tables(tiny, tmp_path):
@@ -174,6 +275,13 @@ def test_from_json_rewrites_the_same_tables(tiny, tmp_path):
     assert (tmp_path / "bench.md").read_text() == (out / "bench.md").read_text()
     assert json.loads((tmp_path / "bench.json").read_text()) == data
     assert (tmp_path / "bench.png").read_bytes()[:8] == PNG_MAGIC
+
+
+def test_from_json_refuses_a_file_that_is_not_a_bench_result(tmp_path, capsys):
+    bad = tmp_path / "bench.json"
+    bad.write_text(json.dumps({"rows": []}))
+    assert bench.main(["--from-json", str(bad)]) == 2
+    assert "cannot read" in capsys.readouterr().err
 
 
 def test_solver_comparison_runs_every_backend_on_the_same_steps(tmp_path):

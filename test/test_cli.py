@@ -285,26 +285,82 @@ def test_compare_reports_speed_and_error(tmp_path, capsys):
     times = np.array([e["time"] for e in result["errors"]])
     np.testing.assert_allclose(times, [0.125, 0.25, 0.5], atol=h / 2 + 1e-12)  # on steps
     np.testing.assert_allclose(times / h, np.round(times / h), atol=1e-9)
-    for e in result["errors"]:
-        assert 0.0 <= e["rms_m"] <= e["max_m"] < 0.1
-        assert e["rms_fraction"] == pytest.approx(e["rms_m"])       # 1 m cloth
+    for key in ("errors", "uniform_errors", "same_step_errors"):
+        for e in result[key]:
+            assert 0.0 <= e["rms_m"] <= e["max_m"] < 0.1, key
+            assert e["rms_fraction"] == pytest.approx(e["rms_m"])       # 1 m cloth
     assert result["speedup"] > 0
     assert "speed-up" in capsys.readouterr().out
 
 
-def test_compare_any_two_configurations(tmp_path):
+def test_compare_measures_both_runs_against_the_converged_reference(tmp_path, capsys):
+    """By default both runs are compared with the scene uniform at the level
+    asked, sdirk2 at h/8 with 3 Newton iterations, and that reference's own
+    error is estimated (2 h_ref; one level coarser with --mesh-check)."""
+    import json
+    out = tmp_path / "cmp.json"
+    code = cli.main(["compare", "hang_two_corners", "--level", "2", "--duration", "0.25",
+                     "--grid", "5", "--mesh-check", "--candidate-set",
+                     "simulation.integrator=baraff_witkin", "--baseline-set",
+                     "simulation.integrator=baraff_witkin", "--json", str(out)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "converged reference: uniform L2, sdirk2" in text
+    assert "same-step reference (mesh error only)" in text     # the adaptive-uniform column
+    result = json.loads(out.read_text())
+    ref = result["reference"]
+    assert ref["mode"] == "converged" and ref["level"] == 2 and ref["divisor"] == 8
+    assert ref["time_step"] == pytest.approx(result["time_step"] / 8)
+    assert ref["newton_iterations"] == 3
+    assert ref["runs"]["reference"]["time_step"] == pytest.approx(result["time_step"] / 8)
+    assert ref["runs"]["reference_2h"]["time_step"] == pytest.approx(result["time_step"] / 4)
+    assert ref["runs"]["reference"]["integrator"] == "sdirk2"
+    assert ref["runs"]["reference_coarse"]["max_triangles"] == 32 * 2       # level 1
+    for own in ref["own_error"]:
+        assert own["time_rms"] >= 0 and own["mesh_rms"] > 0
+    # The uniform run at the reference's level and the paper's step: its
+    # distance from the converged motion is time error, and it is not zero
+    # (a same-step reference would give the uniform run distance 0).
+    assert result["uniform"]["integrator"] == "baraff_witkin"
+    assert all(e["rms_m"] > 0 for e in result["uniform_errors"])
+    assert result["uniform_errors"][-1]["rms_m"] > 10 * ref["own_error"][-1]["time_rms"]
+
+
+def test_compare_same_step_reference_is_labelled(tmp_path, capsys):
     import json
     out = tmp_path / "c.json"
     code = cli.main(["compare", "hang_two_corners", "--level", "3", "--duration", "0.25",
-                     "--grid", "5", "--candidate-set", "lod.enabled=false",
-                     "--candidate-set", "cloth.level=2", "--reference-set",
+                     "--grid", "5", "--reference", "same-step", "--candidate-set",
+                     "lod.enabled=false", "--candidate-set", "cloth.level=2", "--reference-set",
                      "solver.method=direct", "--json", str(out)])
     assert code == 0
+    assert "same-step reference (mesh error only)" in capsys.readouterr().out
     result = json.loads(out.read_text())
+    assert result["reference"] == dict(mode="same-step", label="same-step reference (mesh "
+                                       "error only)", level=3, time_step=result["time_step"])
+    assert result["uniform_errors"] is None and result["errors"] == result["same_step_errors"]
     assert result["adaptive"]["label"] == "candidate" and result["uniform"]["label"] == "reference"
     assert result["adaptive"]["max_triangles"] == 128 and result["uniform"]["max_triangles"] == 256
     assert result["uniform"]["cg_iterations_mean"] == 0.0          # LU reference
     assert all(e["rms_m"] > 0 for e in result["errors"])             # coarser mesh differs
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--reference-level", "2"], "coarser than the runs compared"),
+    (["--reference-divisor", "0"], "divisor"),
+    (["--grid", "1"], "at least 2"),
+])
+def test_compare_bad_arguments_exit_2(capsys, extra, message):
+    code = cli.main(["compare", "hang_two_corners", "--level", "3", "--duration", "0.1"]
+                    + extra)
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and "Traceback" not in err
+
+
+def test_compare_bad_reference_mode_exits_2(capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["compare", "hang_two_corners", "--reference", "finest"])
+    assert exc.value.code == 2
 
 
 def test_zero_duration_writes_the_initial_state_and_its_pictures(tmp_path, capsys):

@@ -3,6 +3,7 @@
     cloth-lod run SCENE [--duration S] [--dt H] [--level L] [--set key=value ...]
                         [--out state.npz] [--png picture.png] [--frames N] [--quiet]
     cloth-lod compare SCENE [--level L] [--duration S] [--set key=value ...] [--json F]
+                      [--reference converged|same-step] [--mesh-check] ...
     cloth-lod scenes
     cloth-lod bench [SCENE] [--quick] ...        speed against error (cloth_lod_ros.tools.bench)
     cloth-lod stress [--quick] ...               hard-case stability suite (cloth_lod_ros.tools.stress)
@@ -241,7 +242,11 @@ def _cmd_compare(args) -> int:
     result = compare_adaptive_uniform(args.scene, level=args.level, duration=args.duration,
                                       overrides=args.set, grid=args.grid,
                                       candidate=args.candidate_set,
-                                      reference=args.reference_set)
+                                      baseline=args.baseline_set,
+                                      reference=args.reference_set, mode=args.reference,
+                                      reference_level=args.reference_level,
+                                      reference_divisor=args.reference_divisor,
+                                      mesh_check=args.mesh_check)
     print(format_comparison(result))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
@@ -334,7 +339,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="MCAP chunk compression (default zstd)")
     run.set_defaults(func=_cmd_run)
     compare = sub.add_parser(
-        "compare", help="adaptive vs uniform at the same level: time per step and distance")
+        "compare", help="adaptive vs uniform at the same level: time per step, and distance "
+                        "from the converged motion")
     compare.add_argument("scene", help="built-in scene name or path to a scene YAML file")
     compare.add_argument("--level", type=int, help="maximum (adaptive) and uniform level")
     compare.add_argument("--duration", type=float, help="simulated seconds")
@@ -342,8 +348,26 @@ def build_parser() -> argparse.ArgumentParser:
                          help="override a scene field in both runs (repeatable)")
     compare.add_argument("--candidate-set", action="append", metavar="KEY=VALUE",
                          help="override for the compared run only (default run: LOD on)")
+    compare.add_argument("--baseline-set", action="append", metavar="KEY=VALUE",
+                         help="override for the baseline run only (default run: LOD off, "
+                              "same level and step)")
+    compare.add_argument("--reference", choices=("converged", "same-step"), default="converged",
+                         help="converged (default): both runs against the scene uniform at "
+                              "--reference-level, sdirk2 at h/--reference-divisor, 3 Newton "
+                              "iterations; same-step: the baseline is the reference (mesh "
+                              "error only, labelled so)")
     compare.add_argument("--reference-set", action="append", metavar="KEY=VALUE",
-                         help="override for the reference run only (default run: LOD off)")
+                         help="override for the reference only: the converged runs, or with "
+                              "--reference same-step the baseline run")
+    compare.add_argument("--reference-level", type=int,
+                         help="level of the converged reference (default: --level, the finest "
+                              "compared)")
+    compare.add_argument("--reference-divisor", type=int, default=8,
+                         help="converged reference step h_ref = time_step / this (default 8); "
+                              "a second run at 2 h_ref estimates its time error")
+    compare.add_argument("--mesh-check", action="store_true",
+                         help="also run the converged reference one level coarser (estimate "
+                              "of its mesh error; about half the reference's cost)")
     compare.add_argument("--grid", type=int, default=21,
                          help="sample grid points per side (default 21)")
     compare.add_argument("--json", help="also write the result as JSON to this path")
@@ -377,7 +401,8 @@ def build_parser() -> argparse.ArgumentParser:
     play.set_defaults(func=_cmd_play)
     for name, module_name, text in (
             ("view", "view", "animate a recorded bag or a headless run of a scene (GIF)"),
-            ("bench", "bench", "speed against error: uniform levels and adaptive thresholds"),
+            ("bench", "bench", "speed against error from the converged motion: integrators "
+                               "x uniform levels and the adaptive mesh"),
             ("stress", "stress", "hard-case stability suite: one table, pass/fail")):
         module = importlib.import_module(f"cloth_lod_ros.tools.{module_name}")
         command = sub.add_parser(name, help=text)

@@ -1,8 +1,11 @@
-"""``cloth-lod bench``: speed against error (design §5).
+"""``cloth-lod bench``: speed against error from the converged motion (design §5).
 
-``runner`` plans the configurations and runs them, ``worker`` is one
-configuration in one pinned process, ``report`` writes the CSV, plot and
-Markdown summary.
+``runner`` resolves the options and runs everything, ``plan`` says what to
+run (integrator families × meshes, the converged reference's runs),
+``worker`` is one run in one pinned process, ``rows`` turns the runs into
+table rows and the reference's own error, ``analysis``, ``report`` and
+``plot`` write the Markdown summary, the CSV and the plot; ``backends`` is
+``--solvers``.
 """
 
 from .runner import BenchError, add_arguments, main, run

@@ -1,119 +1,17 @@
-"""``cloth-lod bench`` output: CSV, plot and the Markdown summary written from the numbers."""
+"""``cloth-lod bench`` summary: ``bench.md``, tables and paragraphs written from the numbers."""
 
 from __future__ import annotations
 
-import csv
-import math
-from pathlib import Path
+from ..reference import SAME_STEP_LABEL
+from .analysis import (comparison_table, families, other, pareto, pct, rest_shape_section,
+                       same_computations, table, time_tag, uniform_rows, verdict_sentences,
+                       why_table)
 
-import numpy as np
+__all__ = ["PAPER", "markdown"]
 
 #: The paper's §6 numbers (2003 hardware): mean CPU ms per frame over the first
 #: 2 s, adaptive (max level 6, 25-particle start) against uniform 33 × 33.
 PAPER = dict(adaptive_ms=284.5, uniform_ms=3012.7, ratio=3012.7 / 284.5, lod_share=0.03)
-
-
-def _time_tag(t: float) -> str:
-    return f"{t:.4g}s"
-
-
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    fields = list(rows[0])
-    with path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields)
-        writer.writeheader()
-        for row in rows:
-            # repr() of a float reads back to the same float.
-            writer.writerow({k: ("" if v is None else repr(v) if isinstance(v, float) else v)
-                             for k, v in row.items()})
-
-
-def _plot(path: Path, rows: list[dict], summary: dict) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    panels = [("rms_frac_motion", "during motion: RMS over t = "
-               + ", ".join(f"{t:.3g}" for t in summary["times"]) + " s"),
-              ("rms_frac_rest", f"at rest (t = {summary['rest_time']:.3g} s); "
-               "hollow: settled into another shape (†)")]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5.2), sharey=False)
-    ref = next(r for r in rows if r["kind"] == "reference")
-    half = next((r for r in rows if r["kind"] == "half_step"), None)
-    markers = {6: "s", 8: "^"}
-    for ax, (key, title) in zip(axes, panels):
-        groups = [("uniform", [r for r in rows if r["kind"] == "uniform"], "k", "o")]
-        for level in sorted({r["level"] for r in rows if r["kind"] == "adaptive"}):
-            groups.append((f"adaptive, max level {level}",
-                           [r for r in rows if r["kind"] == "adaptive" and r["level"] == level],
-                           "C0" if level <= 6 else "C3", markers.get(level, "D")))
-        for name, group, colour, marker in groups:
-            group = sorted((r for r in group if r[key] > 0),
-                           key=lambda r: r["wall_per_sim_s_median"])
-            if not group:
-                continue
-            x = np.array([r["wall_per_sim_s_median"] for r in group])
-            y = np.array([r[key] for r in group])
-            err = np.array([[r["wall_per_sim_s_median"] - r["wall_per_sim_s_min"]
-                             for r in group],
-                            [r["wall_per_sim_s_max"] - r["wall_per_sim_s_median"]
-                             for r in group]])
-            hollow = np.array([key == "rms_frac_rest" and _other(r) for r in group])
-            ax.errorbar(x, y, xerr=err, color=colour, lw=1.5, capsize=3, zorder=2)
-            ax.plot(x[~hollow], y[~hollow], ls="none", marker=marker, ms=6, color=colour,
-                    zorder=3, label=name)
-            ax.plot(x[hollow], y[hollow], ls="none", marker=marker, ms=6, mfc="white",
-                    mec=colour, mew=1.5, zorder=3, label=None if (~hollow).any() else name)
-            # Uniform labels below the points, adaptive ones above; the two
-            # adaptive curves coincide where the higher maximum level is never
-            # reached, so their labels go to opposite sides.
-            if group[0]["kind"] == "uniform":
-                offset, align = (6, -12), "left"
-            elif colour == "C3":
-                offset, align = (6, 5), "left"
-            else:
-                offset, align = (-6, 5), "right"
-            for r, xi, yi in zip(group, x, y):
-                text = (f"L{r['level']}" if r["kind"] == "uniform"
-                        else f"{r['refine_threshold_m'] * 1e3:g} mm")
-                ax.annotate(text, (xi, yi), textcoords="offset points", xytext=offset,
-                            ha=align, fontsize=8, color=colour)
-        ax.axvline(ref["wall_per_sim_s_median"], color="0.4", ls="--", lw=1)
-        ax.annotate(f"reference L{ref['level']}\n(error 0)", (ref["wall_per_sim_s_median"], 0.5),
-                    xycoords=("data", "axes fraction"), textcoords="offset points",
-                    xytext=(-4, 0), ha="right", fontsize=8, color="0.3")
-        ax.axvline(1.0, color="0.7", ls=":", lw=1)
-        ax.annotate("real time", (1.0, 0.02), xycoords=("data", "axes fraction"),
-                    textcoords="offset points", xytext=(3, 0), fontsize=8, color="0.5")
-        if half is not None and half[key] > 0:
-            ax.axhline(half[key], color="C2", ls="-.", lw=1)
-            ax.annotate(f"reference at h vs at h/2: {100 * half[key]:.2g} % of side",
-                        (0.02, half[key]), xycoords=("axes fraction", "data"),
-                        textcoords="offset points", xytext=(0, 3), fontsize=8, color="C2")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.margins(x=0.12)                  # room for the labels of the end points
-        ax.set_xlabel("cost: wall seconds per simulated second (median, bar = min–max), one core")
-        ax.set_ylabel("RMS distance from reference / cloth side")
-        ax.set_title(title, fontsize=10)
-        ax.grid(True, which="both", alpha=0.25)
-        ax.legend(fontsize=8, loc="best")
-    fig.suptitle(f"{summary['scene']}: error against cost, {summary['duration']:g} s simulated, "
-                 f"h = {summary['time_step']:.4g} s, reference uniform L{ref['level']}",
-                 fontsize=11)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-# --------------------------------------------------------------------------
-# Markdown: tables and a paragraph computed from the numbers.
-# --------------------------------------------------------------------------
-
-def _pct(x, digits=2) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "—"
-    return f"{100 * x:.{digits}g} %" if x < 0.1 else f"{100 * x:.1f} %"
 
 
 def _cost_text(r: dict) -> str:
@@ -121,356 +19,264 @@ def _cost_text(r: dict) -> str:
             f"{r['wall_per_sim_s_max']:.3g})")
 
 
-def _uniform_curve_error(rows: list[dict], key: str, cost: float) -> tuple[float | None, str]:
-    """Error of the uniform curve at ``cost`` (s/s), log–log interpolated.
-
-    Between two measured uniform levels (sorted by cost, reference excluded:
-    its error is 0) the curve is a straight line in log–log.  Returns
-    ``(error, where)``; ``error`` is None outside the measured range.
-    """
-    pts = sorted((r["wall_per_sim_s_median"], r[key]) for r in rows
-                 if r["kind"] == "uniform" and r[key] > 0)
-    if not pts:
-        return None, "no uniform level with a non-zero error"
-    if cost < pts[0][0]:
-        return None, "cheaper than every uniform level"
-    if cost > pts[-1][0]:
-        return None, "dearer than every uniform level but the reference"
-    for (c0, e0), (c1, e1) in zip(pts, pts[1:]):
-        if c0 <= cost <= c1:
-            f = 0.0 if c1 == c0 else math.log(cost / c0) / math.log(c1 / c0)
-            return math.exp((1 - f) * math.log(e0) + f * math.log(e1)), "interpolated"
-    return pts[0][1], "at a measured level"
+def _tag_header(tag: str) -> str:
+    return "at rest" if tag == "rest" else tag.replace("s", " s")
 
 
-def _compare_to_uniform(rows: list[dict], key: str) -> list[dict]:
-    """For each adaptive row, its standing against the uniform levels on ``key``.
-
-    Measured points only, for the verdict: ``dominates`` are the uniform levels
-    (reference included) that cost at least as much and are less accurate;
-    ``dominated_by`` those that cost at most as much and are at least as
-    accurate (``within_spread`` when all of those overlap the adaptive run's
-    min–max cost, i.e. the timing cannot separate them).  Neither is a
-    trade-off.  ``curve_ratio`` is the uniform curve's error at the same cost
-    over the adaptive error (> 1: adaptive more accurate at equal cost).
-    """
-    uniform = [r for r in rows if r["kind"] in ("uniform", "reference")]
-    out = []
-    for a in sorted((r for r in rows if r["kind"] == "adaptive"),
-                    key=lambda r: (r["level"], r["refine_threshold_m"])):
-        cost, err = a["wall_per_sim_s_median"], a[key]
-        dominates = [u for u in uniform if u["wall_per_sim_s_median"] >= cost and u[key] > err]
-        dominated = [u for u in uniform if u["wall_per_sim_s_median"] <= cost and u[key] <= err]
-
-        def overlap(u):
-            return (u["wall_per_sim_s_min"] <= a["wall_per_sim_s_max"]
-                    and a["wall_per_sim_s_min"] <= u["wall_per_sim_s_max"])
-        curve, where = _uniform_curve_error(rows, key, cost)
-        out.append(dict(
-            row=a, dominates=dominates, dominated_by=dominated,
-            within_spread=bool(dominated) and all(overlap(u) for u in dominated),
-            curve_error=curve, curve_where=where,
-            curve_ratio=(curve / err) if (curve is not None and err > 0) else None))
-    return out
+def own_error_line(result: dict) -> str:
+    """One sentence with the reference's own error during motion and at rest,
+    for under every table."""
+    ref = result["reference"]
+    if ref["mode"] != "converged":
+        return f"Errors are against a {SAME_STEP_LABEL}."
+    own = ref["own_error"]
+    mesh = (f"mesh error (distance to L{ref['level'] - 1}) {pct(own['motion']['mesh_rms'])} "
+            f"during motion, {pct(own['rest']['mesh_rms'])} at rest"
+            if own["motion"]["mesh_rms"] is not None else "mesh error not estimated "
+            "(`--no-mesh-check`)")
+    return (f"The converged reference's own error, RMS: time error (|ref(2 h_ref) − "
+            f"ref(h_ref)|/3) {pct(own['motion']['time_rms'])} during motion; {mesh}.")
 
 
-def _levels(us: list[dict], key: str = "") -> str:
-    mark = lambda u: " †" if key == "rms_frac_rest" and _other(u) else ""  # noqa: E731
-    return ", ".join(f"L{u['level']}{mark(u)}" for u in sorted(us, key=lambda u: u["level"]))
+def _header(result: dict) -> list[str]:
+    s, m = result["settings"], result["machine"]
+    return [f"# cloth-lod bench: {s['scene']}", "",
+            f"Command: `{s['command']}` (or `python -m cloth_lod_ros.tools.bench` with the "
+            "same arguments)  ",
+            f"Machine: {m['cpu_model']}, {m['logical_cpus']} logical CPUs (each run pinned to "
+            f"CPU {m['pinned_cpu']}, one thread), {m['platform']}; Python {m['python']}, "
+            f"numpy {m['numpy']}, scipy {m['scipy']}; commit {m['git_commit'] or '?'}; "
+            f"{m['date']}.  ",
+            f"Wall time of the whole benchmark: {result['wall_s'] / 60:.1f} min; 1-minute load "
+            f"average during the runs {result['load_min']:.2f}–{result['load_max']:.2f} "
+            "(the machine is shared; a load above 1 on 2 CPUs means other work competed for "
+            "the cores, so compare the min–max ranges, not only the medians).", ""]
 
 
-def _comparison_table(rows: list[dict], key: str) -> list[str]:
-    body = []
-    for c in _compare_to_uniform(rows, key):
-        a = c["row"]
-        if c["dominated_by"]:
-            verdict = "dominated by uniform " + _levels(c["dominated_by"], key)
-            if c["within_spread"]:
-                verdict += " (cost within the timing spread)"
-        elif c["dominates"]:
-            verdict = "dominates uniform " + _levels(c["dominates"], key)
-        else:
-            verdict = "trade-off (no uniform level is better in both)"
-        curve = (f"{_pct(c['curve_error'])} ({c['curve_ratio']:.2g}×)"
-                 if c["curve_ratio"] is not None else c["curve_where"])
-        mark = " †" if key == "rms_frac_rest" and _other(a) else ""
-        body.append([a["label"] + mark, _cost_text(a), _pct(a[key]), curve, verdict])
-    return _table(["adaptive run", "wall s / sim s", "RMS / side",
-                   "uniform curve at that cost (its error / adaptive error)", "verdict"], body)
-
-
-def _verdict_sentences(rows: list[dict], key: str, what: str) -> str:
-    comps = _compare_to_uniform(rows, key)
-    below = [c for c in comps if c["curve_ratio"] is not None and c["curve_ratio"] > 1]
-    above = [c for c in comps if c["curve_ratio"] is not None and c["curve_ratio"] <= 1]
-    wins = [c for c in comps if c["dominates"] and not c["dominated_by"]]
-    losses = [c for c in comps if c["dominated_by"]]
-    name = lambda c: (c["row"]["label"].replace("adaptive ", "")  # noqa: E731
-                      + (" †" if key == "rms_frac_rest" and _other(c["row"]) else ""))
-    parts = [f"**{what}:** "]
-    if wins:
-        parts.append("the adaptive mesh dominates some uniform level (cheaper *and* more "
-                     "accurate) at " + "; ".join(
-                         f"{name(c)} (over uniform {_levels(c['dominates'], key)})" for c in wins)
-                     + ". ")
-    else:
-        parts.append("no adaptive run is both cheaper and more accurate than any uniform "
-                     "level. ")
-    if losses:
-        parts.append("A uniform level is both cheaper and at least as accurate as "
-                     + "; ".join(f"{name(c)} (uniform {_levels(c['dominated_by'], key)}"
-                                 + (", within the timing spread" if c["within_spread"] else "")
-                                 + ")" for c in losses) + ". ")
-    if below or above:
-        parts.append(f"Against the log–log interpolated uniform curve, {len(below)} of "
-                     f"{len(below) + len(above)} adaptive runs inside its cost range lie below "
-                     "it (more accurate at equal cost)"
-                     + (": " + ", ".join(f"{name(c)} {c['curve_ratio']:.2g}×" for c in below)
-                        if below else "")
-                     + ("; above it: " + ", ".join(f"{name(c)} {c['curve_ratio']:.2g}×"
-                                                    for c in above) if above else "")
-                     + ".")
-    return "".join(parts)
-
-
-def _why_table(rows: list[dict]) -> list[str]:
-    """Triangles bought and cost per triangle-step, adaptive against the uniform
-    level of nearest cost: why equal cost buys fewer triangles."""
-    uni = [r for r in rows if r["kind"] in ("uniform", "reference")]
-    ada = sorted((r for r in rows if r["kind"] == "adaptive"),
-                 key=lambda r: (r["level"], r["refine_threshold_m"]))
-    if not uni or not ada:
-        return []
-
-    def per_tri(r):         # µs of wall time per triangle per step
-        return 1e6 * r["wall_per_sim_s_median"] * r["time_step_s"] / max(r["triangles_mean"], 1)
-    body = []
-    for a in ada:
-        near = min(uni, key=lambda u: abs(math.log(u["wall_per_sim_s_median"]
-                                                   / a["wall_per_sim_s_median"])))
-        body.append([a["label"], f"{a['triangles_mean']:.0f} / {a['triangles_max']}",
-                     f"{per_tri(a):.1f}", f"{a['cg_iterations_per_step']:.0f}",
-                     _pct(a["lod_share_median"]), _pct(a["unattributed_share_median"]),
-                     near["label"], f"{near['triangles_mean']:.0f}", f"{per_tri(near):.1f}",
-                     f"{near['cg_iterations_per_step']:.0f}",
-                     _pct(near["unattributed_share_median"])])
-    return _table(["adaptive run", "triangles mean / max", "µs per triangle-step",
-                   "CG it. / step", "LOD share", "unattributed", "uniform of nearest cost",
-                   "triangles", "µs per triangle-step", "CG it. / step", "unattributed"], body)
-
-
-def _table(header: list[str], rows: list[list[str]]) -> list[str]:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(r) + " |" for r in rows]
-    return out
-
-
-def _other(row: dict) -> bool:
-    return row["kind"] != "reference" and bool(row.get("rest_other_shape"))
-
-
-def _same_computations(rows: list[dict]) -> list[tuple[dict, dict]]:
-    """Adaptive pairs (same threshold, different maximum level) that did the
-    same work and got the same errors: the higher maximum was never reached."""
-    ada = sorted((r for r in rows if r["kind"] == "adaptive"),
-                 key=lambda r: (r["refine_threshold_m"], r["level"]))
-    pairs = []
-    for a, b in zip(ada, ada[1:]):
-        if (a["refine_threshold_m"] == b["refine_threshold_m"]
-                and a["vertex_steps"] == b["vertex_steps"]
-                and a["cg_iterations"] == b["cg_iterations"]
-                and a["rms_frac_motion"] == b["rms_frac_motion"]
-                and a["rms_frac_rest"] == b["rms_frac_rest"]):
-            pairs.append((a, b))
-    return pairs
-
-
-def _rest_shape_section(rows: list[dict]) -> list[str]:
-    """Where each run at rest is farthest from the reference, and which way."""
-    body = []
-    for r in rows:
-        if r["kind"] == "reference":
-            continue
-        body.append([r["label"] + (" †" if _other(r) else ""), _pct(r["rms_frac_rest"]),
-                     _pct(r["max_frac_rest"]), _pct(r["max_frac_motion"]),
-                     f"({r['rest_worst_u_m']:.3g}, {r['rest_worst_v_m']:.3g})",
-                     ", ".join(f"{1e3 * r[f'rest_worst_d{c}_m']:+.1f}" for c in "xyz")])
-    others = [r for r in rows if _other(r)]
-    text = ("**At rest: which shape.** For each run, the material point (u, v) farthest from "
-            "the reference at rest and the offset there. ")
-    if others:
-        text += (f"{len(others)} run{'s' if len(others) > 1 else ''} (†) "
-                 f"{'have' if len(others) > 1 else 'has'} the largest distance at rest over "
-                 "twice the largest while moving: not a small drift but a different "
-                 "equilibrium (e.g. a fold that buckled the other way; the offsets show where "
-                 "and which way). For those, the at-rest verdicts above compare which shape a "
-                 "run fell into, not how accurate its mesh is.")
-    else:
-        text += "No run settled into a visibly different shape."
-    return ([text, ""] + _table(["run", "RMS at rest", "max at rest", "max during motion",
-                                  "farthest point (u, v) m", "offset there (x, y, z) mm"],
-                                 body) + [""])
-
-
-def _markdown(result: dict) -> str:
-    s, m, rows = result["settings"], result["machine"], result["rows"]
+def _setup(result: dict) -> list[str]:
+    s, rows, rest, ref = (result["settings"], result["rows"], result["rest"],
+                          result["reference"])
     times = s["times"]
-    tags = [_time_tag(t) for t in times] + ["rest"]
-    ref = next(r for r in rows if r["kind"] == "reference")
-    half = next((r for r in rows if r["kind"] == "half_step"), None)
-    rest = result["rest"]
-    md = [f"# cloth-lod bench: {s['scene']}", ""]
-    md += [f"Command: `{s['command']}` (or `python -m cloth_lod_ros.tools.bench` with the same "
-           "arguments)  ",
-           f"Machine: {m['cpu_model']}, {m['logical_cpus']} logical CPUs (each run pinned to "
-           f"CPU {m['pinned_cpu']}, one thread), {m['platform']}; Python {m['python']}, "
-           f"numpy {m['numpy']}, scipy {m['scipy']}; commit {m['git_commit'] or '?'}; "
-           f"{m['date']}.  ",
-           f"Wall time of the whole benchmark: {result['wall_s'] / 60:.1f} min; 1-minute load "
-           f"average during the runs {result['load_min']:.2f}–{result['load_max']:.2f} "
-           "(the machine is shared; a load above 1 on 2 CPUs means other work competed for "
-           "the cores, so compare the min–max ranges, not only the medians).", ""]
-    md += ["## Set-up", "",
-           f"- Scene `{s['scene']}`, {s['duration']:g} s simulated, h = {s['time_step']:.6g} s; "
-           f"cloth side {s['side_m']:g} m (0.1 % of the side = {s['side_m']:g} mm).",
-           f"- Reference: uniform level {s['reference_level']}, same h. "
-           + s["reference_note"],
-           f"- Error: RMS and max distance from the reference over a {s['grid']} × {s['grid']} "
-           f"grid of material points, as a fraction of the side, at t = "
+    md = ["## Set-up", "",
+          f"- Scene `{s['scene']}`, {s['duration']:g} s simulated; frame period h = "
+          f"{s['time_step']:.6g} s (`simulation.time_step`, the largest step; every run is "
+          f"sampled once per frame); cloth side {s['side_m']:g} m (1 % of the side = "
+          f"{10 * s['side_m']:g} mm).",
+          "- Families (`--schemes`): " + "; ".join(
+              f"`{f['spec']}` = {f['label']}" for f in s["families"])
+          + f". Scene default: `simulation.integrator: {s['scene_default']['integrator']}`, "
+          f"`error_tolerance: {s['scene_default']['error_tolerance']:g}`. Each family runs "
+          f"uniform at levels {', '.join(map(str, s['levels']))} and adaptive at maximum "
+          f"level {', '.join(map(str, s['max_levels']))} with refine threshold "
+          f"{', '.join(f'{t * 1e3:g}' for t in s['thresholds'])} mm (coarsen = "
+          f"{s['coarsen_ratio']:g} × refine, the scene's ratio), starting from level "
+          f"{s['initial_level']}."]
+    if ref["mode"] == "converged":
+        runs = ref["runs"]
+        main = runs["reference"]
+        md.append(
+            f"- **Reference: the converged motion**, approximated by the scene uniform at "
+            f"level {ref['level']}, `sdirk2` (second order) with a fixed step h_ref = "
+            f"h/{ref['divisor']:g} = {ref['time_step']:.4g} s, {ref['newton_iterations']} Newton "
+            f"iterations per stage to {ref['newton_tolerance']:g} m, no error control "
+            f"({main['solves_per_step']:.1f} solves per step, {main['wall_per_sim_s']:.3g} s "
+            "per simulated second, run once). Its own error is estimated by a run at 2 h_ref "
+            "(time: |ref(2 h_ref) − ref(h_ref)|/3 for a second-order method)"
+            + (f" and a run one level coarser, L{ref['level'] - 1} (mesh: the distance "
+               "between the two is the size of the reference's mesh error)"
+               if "reference_coarse" in runs else "")
+            + ". After the timed window it goes on to rest at the frame period h (a resting "
+            "shape is an equilibrium of the model on its mesh, which the step does not "
+            "change; at rest only the mesh estimate applies).")
+    else:
+        md.append(f"- **Reference: {SAME_STEP_LABEL}.** Each family is compared with its own "
+                  f"uniform level-{ref['level']} run at the same h and integrator settings, "
+                  "so every error below leaves out the time integration's error.")
+    md += [f"- Error: RMS and max 3-D distance from the reference over a {s['grid']} × "
+           f"{s['grid']} grid of material points, as a fraction of the side, at t = "
            + ", ".join(f"{t:.4g}" for t in times) + " s and at rest. \"During motion\" is the "
-           "RMS over all points and those times.",
+           "RMS over those times.",
            f"- At rest: the first time after {s['duration']:g} s at which the reference's "
            f"kinetic energy per unit mass stayed below {s['rest_threshold']:g} J/kg for "
            f"{s['rest_window']:g} s, capped at {s['rest_cap']:g} s: "
            + (f"t = {rest['time']:g} s." if rest["at_rest"] else
               f"**not reached by the cap**; sampled at t = {rest['time']:g} s "
               f"(reference kinetic energy {rest['ke_per_mass']:.2g} J/kg).")
-           + " Every run is sampled at that time; its own kinetic energy there is in the "
-           "CSV (`ke_per_mass_at_rest`).",
-           f"- Cost over the first {s['duration']:g} s only: wall seconds per simulated second "
-           f"(median and min–max of {s['repeats']} runs, each a fresh process pinned to one "
-           "CPU, all thread pools at 1), vertex-steps, CG iterations, share of wall time in "
-           "LOD (criterion, splits/merges, refresh of compact arrays). The reference at h/2 "
-           "runs once (it is there for its error, not its cost).",
-           f"- Adaptive runs start from level {s['initial_level']} and refine where the "
-           "deviation d exceeds the threshold; coarsen threshold = "
-           f"{s['coarsen_ratio']:g} × threshold (the scene's ratio)."]
-    md.append(f"- The bench's clock around `ClothSim.step()` read at most "
-              f"{_pct(max(r['timing_overhead_share_max'] for r in rows))} more than the "
-              "step's own clock (`StepStats.step_ms`): sampling and bookkeeping are outside "
-              "the timed calls.")
+           + " Every run is sampled at that time (its own kinetic energy there is "
+           "`ke_per_mass_at_rest` in the CSV).",
+           f"- Cost over the first {s['duration']:g} s only: wall (and CPU) seconds per "
+           f"simulated second, median and min–max of {s['repeats']} runs, each a fresh "
+           "process pinned to one CPU with every thread pool at 1, in rounds; per frame: "
+           "integrator steps (substeps), Newton iterations (linearisations), linear solves "
+           "and CG iterations; rejected steps in total; LOD share of the wall time.",
+           "- The bench's clock around `ClothSim.step()` read at most "
+           f"{pct(max(r['timing_overhead_share_max'] for r in rows))} more than the step's "
+           "own clock (`StepStats.step_ms`)."]
     if any(r["repeat_max_deviation_m"] > 0 for r in rows):
         md.append("- **Repeats differ** (see `repeat_max_deviation_m`): runs are not "
                   "deterministic.")
     else:
         md.append("- Every repeat reproduced the first one's samples bit for bit.")
-    md.append("")
-    if half is not None:
-        md += ["## What \"converged\" means", "",
-               f"Distance of the reference (uniform L{ref['level']}, h) from the same mesh at "
-               f"h/2 (implicit Euler's numerical damping depends on h):", ""]
-        md += _table(["t"] + [t.replace("s", " s") if t != "rest" else "rest" for t in tags],
-                     [["RMS / side"] + [_pct(half[f"rms_frac_{t}"]) for t in tags],
-                      ["max / side"] + [_pct(half[f"max_frac_{t}"]) for t in tags]])
-        md += ["", "Errors below are spatial (mesh) errors at fixed h; where they are smaller "
-               "than this row, the time step, not the mesh, limits the accuracy."]
-        finest = max((r for r in rows if r["kind"] == "uniform"), key=lambda r: r["level"],
-                     default=None)
-        if finest is not None and finest["rms_frac_motion"] > 0:
-            md[-1] += (f" During motion, halving h moves the reference "
-                       f"{half['rms_frac_motion'] / finest['rms_frac_motion']:.3g}× as far as "
-                       f"refining from uniform L{finest['level']} to L{ref['level']} does "
-                       f"({_pct(half['rms_frac_motion'])} against "
-                       f"{_pct(finest['rms_frac_motion'])} RMS); at rest "
-                       f"{_pct(half['rms_frac_rest'])} against {_pct(finest['rms_frac_rest'])}.")
-        md.append("")
-    md += ["## Results", ""]
-    header = (["run", "wall s / sim s", "ms / step", "CPU s / sim s", "vertex-steps",
-               "CG it. (per step)", "triangles mean / max", "LOD share"]
-              + [f"RMS {t.replace('s', ' s') if t != 'rest' else 'at rest'}" for t in tags]
-              + ["RMS motion", "max motion", "max at rest"])
+    return md + [""]
+
+
+def _own_error_section(result: dict) -> list[str]:
+    ref, s = result["reference"], result["settings"]
+    if ref["mode"] != "converged":
+        return []
+    own = ref["own_error"]
+    tags = [time_tag(t) for t in s["times"]] + ["rest"]
+    cell = lambda e, what: (f"{pct(e[f'{what}_rms'])} ({pct(e[f'{what}_max'])})"  # noqa: E731
+                            if e[f"{what}_rms"] is not None else "—")
+    body = [["time: \\|ref(2 h_ref) − ref(h_ref)\\|/3"] + [cell(own[t], "time") for t in tags]
+            + [cell(own["motion"], "time")]]
+    if own["motion"]["mesh_rms"] is not None:
+        body.append([f"mesh: \\|L{ref['level'] - 1} − L{ref['level']}\\| at h_ref"]
+                    + [cell(own[t], "mesh") for t in tags] + [cell(own["motion"], "mesh")])
+    md = ["## The reference's own error", "",
+          "RMS (max) over the sample points, as a fraction of the side:", ""]
+    md += table(["estimate"] + [_tag_header(t) for t in tags] + ["during motion"], body)
+    time_est = own["motion"]["time_rms"] or 0.0
+    floor = time_est + (own["motion"]["mesh_rms"] or 0.0)
+    # Uniform runs on the reference's own mesh share its mesh error: for them
+    # only the time estimate is a floor.
+    same_mesh = lambda r: r["kind"] == "uniform" and r["level"] == ref["level"]  # noqa: E731
+    for group, bound, what in (
+            ([r for r in result["rows"] if not same_mesh(r)], floor,
+             "the sum of both estimates"),
+            ([r for r in result["rows"] if same_mesh(r)], time_est,
+             f"the time estimate (uniform L{ref['level']} shares the reference's mesh, so its "
+             "error is the time integration's alone)")):
+        if group and bound > 0:
+            best = min(group, key=lambda r: r["rms_frac_motion"])
+            md += ["", f"Smallest error during motion: {pct(best['rms_frac_motion'])} "
+                   f"({best['label']}), {best['rms_frac_motion'] / bound:.3g}× {what}."]
+    return md + [""]
+
+
+def _results(result: dict) -> list[str]:
+    s, rows = result["settings"], result["rows"]
+    tags = [time_tag(t) for t in s["times"]] + ["rest"]
+    header = (["run", "wall s / sim s", "CPU s / sim s", "ms / frame", "substeps / frame (max)",
+               "rejected", "Newton it. / frame", "solves / frame", "CG it. / frame",
+               "triangles mean", "LOD share"]
+              + [f"RMS {_tag_header(t)}" for t in tags] + ["RMS motion", "max motion"])
     body = []
     for r in rows:
-        if r["kind"] == "half_step":
-            continue
-        body.append([r["label"], _cost_text(r), f"{r['ms_per_step_median']:.3g}",
-                     f"{r['cpu_per_sim_s_median']:.3g}", f"{r['vertex_steps']:,}",
-                     f"{r['cg_iterations']:,} ({r['cg_iterations_per_step']:.0f})",
-                     f"{r['triangles_mean']:.0f} / {r['triangles_max']}",
-                     _pct(r["lod_share_median"]) if r["kind"] == "adaptive" else "—"]
-                    + [_pct(r[f"rms_frac_{t}"]) + (" †" if t == "rest" and _other(r) else "")
+        body.append([r["label"], _cost_text(r), f"{r['cpu_per_sim_s_median']:.3g}",
+                     f"{r['ms_per_frame_median']:.3g}",
+                     f"{r['substeps_per_frame']:.2f} ({r['substeps_max']})",
+                     f"{r['rejected_steps']}", f"{r['newton_iterations_per_frame']:.2f}",
+                     f"{r['solves_per_frame']:.2f}", f"{r['cg_iterations_per_frame']:.0f}",
+                     f"{r['triangles_mean']:.0f}",
+                     pct(r["lod_share_median"]) if r["kind"] == "adaptive" else "—"]
+                    + [pct(r[f"rms_frac_{t}"]) + (" †" if t == "rest" and other(r) else "")
                        for t in tags]
-                    + [_pct(r["rms_frac_motion"]), _pct(r["max_frac_motion"]),
-                       _pct(r["max_frac_rest"])])
-    md += _table(header, body)
-    if any(_other(r) for r in rows):
-        md += ["", "† settled into another shape than the reference (its largest distance at "
-               "rest is more than twice its largest distance during motion); see "
-               "\"At rest: which shape\" below."]
-    same = _same_computations(rows)
+                    + [pct(r["rms_frac_motion"]), pct(r["max_frac_motion"])])
+    md = ["## Results", ""] + table(header, body)
+    md += ["", own_error_line(result)]
+    if result["reference"]["mode"] == "converged":
+        md[-1] += (f" Uniform L{result['reference']['level']} runs share the reference's mesh: "
+                   "their error is the time integration's alone.")
+    if any(other(r) for r in rows):
+        md += ["", "† settled into another shape than the reference: its largest distance at "
+               "rest is more than twice its largest distance during motion, or it is a uniform "
+               "run on the reference's mesh and at rest it is farther from the reference than "
+               "the reference's own mesh error; see \"At rest: which shape\" below."]
+    same = same_computations(rows)
     if same:
         md += ["", "Same computation, different labels: " + "; ".join(
-            f"{b['label']} never refined past what {a['label']} did (same vertex-steps, CG "
-            f"iterations and errors), so the gap between their costs, "
-            f"{a['wall_per_sim_s_median']:.3g} and {b['wall_per_sim_s_median']:.3g} s per "
-            f"simulated second, is timing noise" for a, b in same)
-            + ". That is how far apart two measurements of one computation came on this "
-            "machine."]
-    md += ["", "![error against cost](bench.png)", ""]
-    paper = result.get("paper")
-    md += ["## The paper's comparison on our code", ""]
-    if paper:
-        md += [f"Mean time per step over the first {s['duration']:g} s (the paper's \"frame\"), "
-               f"adaptive (max level {paper['level']}, threshold "
-               f"{paper['threshold'] * 1e3:g} mm, as in the scene) against uniform level "
-               f"{paper['level']} ({paper['grid']} × {paper['grid']} particles), median "
-               "(min–max) of the repeats; the ratio is computed per round (runs back to back).",
-               ""]
-        md += _table(
-            ["", "adaptive ms / step", "uniform ms / step", "ratio", "LOD share",
-             "adaptive RMS motion / rest", "uniform RMS motion / rest"],
-            [["paper (2003 hardware)", f"{PAPER['adaptive_ms']:.1f}",
-              f"{PAPER['uniform_ms']:.1f}", f"{PAPER['ratio']:.1f}×", "~3 %", "not given",
-              "not given"],
-             ["this code", paper["adaptive_ms_text"], paper["uniform_ms_text"],
-              paper["ratio_text"],
-              f"{_pct(paper['lod_share'])} (≤ {_pct(paper['lod_share_upper'])})",
-              f"{_pct(paper['adaptive_rms_motion'])} / {_pct(paper['adaptive_rms_rest'])}",
-              f"{_pct(paper['uniform_rms_motion'])} / {_pct(paper['uniform_rms_rest'])}"]])
-        md += ["", "LOD share: as `StepStats.lod_ms` books it; in brackets, plus the "
-               "adaptive run's unattributed share beyond the uniform run's (mostly the "
-               "criterion's force evaluation on steps where the mesh changes). Errors: RMS "
-               "distance from the reference, as a fraction of the side.", ""]
-    else:
-        md += ["Not available: the run needs the scene's level among `--levels` and "
-               "`--max-levels` and its refine threshold among `--thresholds`.", ""]
-    md += ["## Does adaptive beat uniform?", "",
-           "Verdicts use measured points only; \"dominates\" means cheaper (median wall "
-           "time) *and* more accurate. The uniform curve column interpolates between "
-           "measured uniform levels in log–log.", ""]
-    for key, what in (("rms_frac_motion", "During motion"), ("rms_frac_rest", "At rest")):
-        md += [_verdict_sentences(rows, key, what), ""] + _comparison_table(rows, key) + [""]
-    md += _rest_shape_section(rows)
-    why = _why_table(rows)
+            f"{b['label']} never refined past what {a['label']} did, so the gap between "
+            f"their costs, {a['wall_per_sim_s_median']:.3g} and "
+            f"{b['wall_per_sim_s_median']:.3g} s per simulated second, is timing noise"
+            for a, b in same) + "."]
+    return md + ["", "![error against cost](bench.png)", ""]
+
+
+def _headline(result: dict) -> list[str]:
+    """Per family: the finest uniform level and each adaptive run, error and
+    cost relative to the first family's same mesh (ratios from one run)."""
+    rows = result["rows"]
+    fams = families(rows)
+    if not fams:
+        return []
+    first = {(r["kind"] in ("uniform", "same_step"), r["level"], r["refine_threshold_m"]): r
+             for r in fams[0][1]}
+    body = []
+    for _, fam_rows in fams:
+        uni = uniform_rows(fam_rows)
+        picks = ([max(uni, key=lambda r: r["level"])] if uni else []) + [
+            r for r in fam_rows if r["kind"] == "adaptive"]
+        for r in picks:
+            base = first.get((r["kind"] in ("uniform", "same_step"), r["level"],
+                              r["refine_threshold_m"]))
+            ratio = (f"{r['wall_per_sim_s_median'] / base['wall_per_sim_s_median']:.2f}×"
+                     if base else "—")
+            body.append([r["label"], pct(r["rms_frac_motion"]), pct(r["rms_frac_rest"])
+                         + (" †" if other(r) else ""), _cost_text(r), ratio,
+                         f"{r['substeps_per_frame']:.2f}", f"{r['solves_per_frame']:.2f}"])
+    md = ["## Speed against error", "",
+          f"Each family on the finest uniform mesh and on the adaptive mesh; cost ratios "
+          f"to the first family ({fams[0][1][0]['label'].rsplit(', ', 1)[0]}) on the same "
+          "mesh, from the same run:", ""]
+    md += table(["run", "RMS during motion", "RMS at rest", "wall s / sim s",
+                 "cost × first family", "substeps / frame", "solves / frame"], body)
+    front = pareto(rows, "rms_frac_motion")
+    md += ["", "**Cheapest for its accuracy during motion** (no other run is both cheaper "
+           "and more accurate): " + "; ".join(
+               f"{r['label']} ({pct(r['rms_frac_motion'])}, {r['wall_per_sim_s_median']:.3g} "
+               "s/s)" for r in front) + ".", "", own_error_line(result), ""]
+    return md
+
+
+def _paper(result: dict) -> list[str]:
+    s, paper = result["settings"], result.get("paper")
+    md = ["## The paper's comparison on our code", ""]
+    if not paper:
+        return md + ["Not available: the run needs the `baraff_witkin` family with a fixed "
+                     "step, the scene's level among `--levels` and `--max-levels` and its "
+                     "refine threshold among `--thresholds`.", ""]
+    md += [f"Mean time per frame over the first {s['duration']:g} s, in the paper's own "
+           f"configuration (`baraff_witkin`, one step per frame): adaptive (max level "
+           f"{paper['level']}, threshold {paper['threshold'] * 1e3:g} mm, as in the scene) "
+           f"against uniform level {paper['level']} ({paper['grid']} × {paper['grid']} "
+           "particles), median (min–max) of the repeats; the ratio is computed per round.", ""]
+    md += table(
+        ["", "adaptive ms / frame", "uniform ms / frame", "ratio", "LOD share",
+         "adaptive RMS motion / rest", "uniform RMS motion / rest"],
+        [["paper (2003 hardware)", f"{PAPER['adaptive_ms']:.1f}", f"{PAPER['uniform_ms']:.1f}",
+          f"{PAPER['ratio']:.1f}×", "~3 %", "not given", "not given"],
+         ["this code", paper["adaptive_ms_text"], paper["uniform_ms_text"], paper["ratio_text"],
+          f"{pct(paper['lod_share'])} (≤ {pct(paper['lod_share_upper'])})",
+          f"{pct(paper['adaptive_rms_motion'])} / {pct(paper['adaptive_rms_rest'])}",
+          f"{pct(paper['uniform_rms_motion'])} / {pct(paper['uniform_rms_rest'])}"]])
+    return md + ["", "LOD share: as `StepStats.lod_ms` books it; in brackets, plus the adaptive "
+                 "run's unattributed share beyond the uniform run's. " + own_error_line(result),
+                 ""]
+
+
+def markdown(result: dict) -> str:
+    rows = result["rows"]
+    md = _header(result) + _setup(result) + _own_error_section(result) + _results(result)
+    md += _headline(result) + _paper(result)
+    if any(r["kind"] == "adaptive" for r in rows):
+        md += ["## Does adaptive beat uniform?", "",
+               "Within each family (same integrator settings), so that the comparison is "
+               "about the mesh. Verdicts use measured points only; \"dominates\" means "
+               "cheaper (median wall time) *and* more accurate. The uniform curve column "
+               "interpolates between the family's measured uniform levels in log–log.", ""]
+        for key, what in (("rms_frac_motion", "During motion"), ("rms_frac_rest", "At rest")):
+            md += [verdict_sentences(rows, key, what), ""] + comparison_table(rows, key) + [""]
+        md += [own_error_line(result), ""]
+    md += rest_shape_section(rows)
+    why = why_table(rows)
     if why:
-        md += ["Where the time goes: the triangles each run simulates, and what a "
-               "triangle-step costs (wall time per step / mean triangles), against the "
-               "uniform level of nearest cost. \"Unattributed\" is step time that "
-               "`StepStats` books to none of LOD, forces, assembly and solve: energies and "
-               "statistics in every run, and with LOD on also the criterion's force "
-               "evaluation on steps where the mesh then changes (the solver evaluates the new "
-               "mesh again and books only that one). The LOD share is therefore a lower "
-               "bound; LOD share + the adaptive run's extra unattributed share is about the "
-               "upper one.", ""] + why + [""]
-    if half is not None:
-        md += [f"For scale: the reference itself moves {_pct(half['rms_frac_motion'])} RMS "
-               "during motion when the time step is halved, "
-               f"and {_pct(half['rms_frac_rest'])} at rest.", ""]
+        md += ["Where the time goes: the triangles each adaptive run simulates and what a "
+               "triangle-frame costs (wall time per frame / mean triangles), against the "
+               "uniform level of nearest cost in its family. \"Unattributed\" is step time "
+               "that `StepStats` books to none of LOD, forces, assembly and solve.", ""]
+        md += why + [""]
     md += ["Files: `bench.csv` (one row per configuration), `bench.json` (the same rows plus "
-           "machine, settings and every repeat), `bench.png`.", ""]
+           "machine, settings, the reference's runs and own error, and every repeat), "
+           "`bench.png`.", ""]
     return "\n".join(md)
-
-
-# --------------------------------------------------------------------------
-# Command line.
-# --------------------------------------------------------------------------

@@ -23,9 +23,12 @@ def _worker(spec: dict) -> dict:
 
     ``spec`` keys: ``scene`` (name or path), ``overrides`` (list of
     ``key=value``), ``points`` ((m, 2) material points, m), ``times`` (sample
-    times, s), ``duration`` (timed window, s), ``rest`` (None, ``{"time": t}``
-    to sample at t, or ``{"find": {"threshold", "window", "cap"}}`` to find
-    the rest time as described in the module docstring).
+    times, s, within the timed window), ``duration`` (timed window, s),
+    ``rest`` (None, ``{"time": t}`` to sample at t, or ``{"find": {"threshold",
+    "window", "cap"}}`` to find the rest time as described in the runner's
+    docstring) and ``rest_time_step`` (optional, s: the step taken after the
+    timed window, on the way to rest; default the run's own).  Steps are
+    frames (``ClothSim.step()``: ``simulation.time_step``, substeps inside).
 
     Returns a JSON-ready dict: ``samples`` ((k, m, 3) positions, m, at
     ``times`` then at rest if requested), ``rest_time`` (s), ``at_rest``,
@@ -45,48 +48,54 @@ def _worker(spec: dict) -> dict:
     timed_steps = int(round(spec["duration"] / h))
     wanted = {int(round(t / h)): i for i, t in enumerate(spec["times"])}
     rest = spec.get("rest")
-    rest_step = int(round(rest["time"] / h)) if rest and "time" in rest else None
+    rest_h = float(spec.get("rest_time_step") or h)
     find = rest.get("find") if rest else None
-    last_step = max([timed_steps, *wanted, rest_step or 0])
-    if find:
-        last_step = max(last_step, int(round(find["cap"] / h)))
-        window = deque(maxlen=max(int(round(find["window"] / h)), 1))
 
     samples: list = [None] * len(spec["times"])
     ke = [None] * len(spec["times"])
     step_wall = np.zeros(timed_steps)
     cpu_s = 0.0
     load_start = os.getloadavg()
-    rest_time = at_rest = rest_sample = rest_ke = None
-    k = 0
-    while k < last_step:
+    for k in range(1, max([timed_steps, *wanted]) + 1):
         # Only sim.step() is inside the clock; sampling and bookkeeping are not.
-        if k < timed_steps:
+        if k <= timed_steps:
             c0, w0 = _time.process_time(), _time.perf_counter()
             stats = sim.step()
             w1, c1 = _time.perf_counter(), _time.process_time()
-            step_wall[k] = w1 - w0
+            step_wall[k - 1] = w1 - w0
             cpu_s += c1 - c0
         else:
             stats = sim.step()
-        k += 1
-        ke_mass = stats.kinetic_energy / total_mass
         if k in wanted:
             samples[wanted[k]] = sim.sample(points).tolist()
-            ke[wanted[k]] = ke_mass
-        if rest_step is not None and k == rest_step:
-            rest_time = k * h
-            rest_sample, rest_ke = sim.sample(points).tolist(), ke_mass
+            ke[wanted[k]] = stats.kinetic_energy / total_mass
+    st = sim.stats[:timed_steps]
+    rest_time = at_rest = rest_sample = rest_ke = None
+    if rest:
+        # After the timed window, frames of ``rest_h`` (the converged reference
+        # goes on at the frame period: a resting shape is an equilibrium of the
+        # model on its mesh, which the step does not change).
+        start = sim.step_count * h
+        sim.time_step = rest_h
         if find:
-            window.append(ke_mass)
-            settled = len(window) == window.maxlen and max(window) < find["threshold"]
-            if k > timed_steps and (settled or k == last_step):
-                rest_time, at_rest = k * h, bool(settled)
-                rest_sample, rest_ke = sim.sample(points).tolist(), ke_mass
-                break
+            window = deque(maxlen=max(int(round(find["window"] / rest_h)), 1))
+            last = max(int(round((find["cap"] - start) / rest_h)), 1)
+        else:
+            last = max(int(round((rest["time"] - start) / rest_h)), 0)
+        ke_mass = sim.stats[-1].kinetic_energy / total_mass if sim.stats else 0.0
+        settled = False
+        for j in range(1, last + 1):
+            ke_mass = sim.step().kinetic_energy / total_mass
+            if find:
+                window.append(ke_mass)
+                settled = len(window) == window.maxlen and max(window) < find["threshold"]
+                if settled:
+                    break
+        rest_time = start + j * rest_h if last else start
+        at_rest = bool(settled) if find else None
+        rest_sample, rest_ke = sim.sample(points).tolist(), ke_mass
     load_end = os.getloadavg()
 
-    st = sim.stats[:timed_steps]
     step_ms = np.array([s.step_ms for s in st])
     tris = np.array([s.triangle_count for s in st])
     cost = dict(
@@ -102,6 +111,11 @@ def _worker(spec: dict) -> dict:
         cg_iterations=int(sum(s.cg_iterations for s in st)),
         cg_iterations_max=int(max(s.cg_iterations for s in st)),
         solves=int(sum(s.solves for s in st)),
+        substeps=int(sum(s.substeps for s in st)),
+        substeps_max=int(max(s.substeps for s in st)),
+        rejected_steps=int(sum(s.rejected_steps for s in st)),
+        newton_iterations=int(sum(s.newton_iterations for s in st)),
+        smallest_step=float(min(s.smallest_step for s in st)),
         solvers=sorted({s.solver for s in st}),
         unconverged_steps=int(sum(not s.converged for s in st)),
         vertex_steps=int(sum(s.vertex_count for s in st)),
