@@ -75,7 +75,7 @@ def plot(path: Path, result: dict) -> None:
                                 xytext=(4, -10 if marker == "o" else 5), fontsize=7,
                                 color=colour)
         ax.plot([], [], ls="none", marker="*", ms=10, color="0.3",
-                label=f"adaptive (A = max level)")
+                label="adaptive (A = max level)")
         if converged:
             for what, style in (("time", "--"), ("mesh", ":")):
                 value = own.get(own_key, {}).get(f"{what}_rms")

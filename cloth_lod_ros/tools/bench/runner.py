@@ -56,6 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...sim.timestepping import effective_tolerance
 from ..reference import MODES, SAME_STEP_LABEL, ConvergedReference
 from .plan import (FULL, QUICK, REFERENCE_KINDS, BenchError, configurations, family_label,
                    parse_scheme)
@@ -405,7 +406,7 @@ def run(args) -> int:
         max_levels=sorted(set(args.max_levels)), thresholds=sorted(set(args.thresholds)),
         families=list(fams.values()),
         scene_default=dict(integrator=scene.simulation.integrator,
-                           error_tolerance=scene.simulation.error_tolerance),
+                           error_tolerance=effective_tolerance(scene.simulation)),
         coarsen_ratio=args.coarsen_ratio, initial_level=scene.lod.initial_level,
         rest_threshold=args.rest_threshold, rest_window=args.rest_window,
         rest_cap=args.rest_cap, overrides=list(args.set or []), quick=bool(args.quick))
