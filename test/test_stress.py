@@ -11,7 +11,7 @@ import pytest
 from cloth_lod_ros.tools.stress import runner as stress  # the module that reads CASES
 from cloth_lod_ros.sim.config import scene_from_dict
 from cloth_lod_ros.sim import ClothSim
-from cloth_lod_ros.sim.timestepping import TimeStepper as StepControl
+from cloth_lod_ros.sim.timestepping import TimeStepper
 from cloth_lod_ros.tools.stress import CASES, Bounds, Case, Variant, run_case
 
 CASE = {c.name: c for c in CASES}
@@ -128,7 +128,7 @@ def test_thrashing_without_hysteresis_is_caught():
 def test_a_linearisation_blow_up_is_caught_without_the_step_size_control(monkeypatch):
     """The 5 m/s impact with the step-size control switched off stretches the
     cloth by ~40 % and multiplies its energy: strain and energy checks fail."""
-    monkeypatch.setattr(StepControl, "max_substep_depth", 0)
+    monkeypatch.setattr(TimeStepper, "max_substep_depth", 0)
     result = run_case(CASE["drop_on_sphere_fast"], lod=False, quick=True,
                       extra=["simulation.integrator=baraff_witkin"])
     checks = [f.split(":")[0] for f in result.failures]
@@ -184,7 +184,7 @@ def test_a_step_whose_stretch_jumps_is_split_and_pins_still_land_exactly(monkeyp
         assert stats.substeps > 1
         assert np.array_equal(sim.positions[sim.pin("a").vertex], target)
         assert sim.time == stats.time and stats.time == pytest.approx(21 / 60, abs=1e-12)
-    monkeypatch.setattr(StepControl, "max_substep_depth", 0)
+    monkeypatch.setattr(TimeStepper, "max_substep_depth", 0)
     uncontrolled = ClothSim(_scene(pins=pins, integrator="baraff_witkin"))
     _, single = _yank(uncontrolled)
     assert single.substeps == 1
@@ -202,7 +202,7 @@ def test_a_fast_impact_stays_physical_with_the_step_size_control(control, integr
     with it the strain stays at a few per cent and the energy, which
     inelastic contact can only remove, grows by < 1 %."""
     if not control:
-        monkeypatch.setattr(StepControl, "max_substep_depth", 0)
+        monkeypatch.setattr(TimeStepper, "max_substep_depth", 0)
     ball = {"type": "sphere", "centre": [0.5, 0.5, 0.0], "radius": 0.25}
     sim = ClothSim(_scene(level=5, obstacles=[ball], origin=(0.0, 0.0, 0.3),
                           integrator=integrator))

@@ -9,7 +9,7 @@ velocity prescribed so that it ends the step exactly on the offset surface at
 is pushed out at most ``max_correction_speed``).  The
 constraint is released when the force it would need pulls the particle in
 (the solve is repeated without it).  Coulomb friction is part of the implicit
-solve (``integrator.ImplicitEulerSolver._solve_with_contacts``): from the frictionless
+solve (``integrator.ImplicitStageSolver._solve_with_contacts``): from the frictionless
 normal impulse λ, a contact sticks (fully constrained) while its tangential
 momentum is within μλ and slips with the impulse −μλ t̂ otherwise, so the rest
 of the cloth responds to the friction in the same step.
