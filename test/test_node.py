@@ -474,6 +474,25 @@ def test_use_sim_time_without_clock_waits_and_says_so(running):
     assert level(node) == 1
 
 
+def test_switching_use_sim_time_live_is_refused_and_the_node_lives(running):
+    """rclpy would tear down its /clock subscription under the executor (the node
+    died with InvalidHandle); the clock source is chosen at start."""
+    node = running("use_sim_time:=true")
+    for value in (False, True, False):
+        result = node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
+                           SetParametersAtomically.Request(parameters=[Parameter(
+                               name="use_sim_time", value=ParameterValue(
+                                   type=ParameterType.PARAMETER_BOOL,
+                                   bool_value=value))])).result
+        assert result.successful == value        # true is the start value: accepted
+        if not value:
+            assert "read-only while the node runs" in result.reason
+    node.spin_for(0.5)
+    assert node.proc.poll() is None
+    assert "/clock" in node.stats[-1].status[0].message      # still waiting for /clock
+    assert int(node.stat("rejected_parameters")) == 2
+
+
 def test_standard_diagnostics_carry_numbers(running, observer):
     seen = []
     sub = observer.create_subscription(DiagnosticArray, "/diagnostics", seen.append, 10)

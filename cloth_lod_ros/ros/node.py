@@ -96,7 +96,7 @@ class ClothLodNode(Node):
         _forward_library_logs(self.get_logger())
         self.queue = InputQueue()
         self.rejected = dict.fromkeys(POSE_REJECTIONS, 0)
-        self.rejected.update(invalid=0, requests=0)
+        self.rejected.update(invalid=0, requests=0, parameters=0)
         self.poses_received = 0
         self.internal_errors = 0
         self.error: str | None = None
@@ -207,6 +207,8 @@ class ClothLodNode(Node):
         """Validate a set of changes as a whole; refuse with the reason, keep old values."""
         result, scene, changes = parameters.validate(
             params, lambda name: self.get_parameter(name).value, self._param_scene)
+        if not result.successful:
+            self.rejected["parameters"] += 1
         if result.successful and changes:
             if not self.queue.put_command("parameters", changes):
                 return SetParametersResult(successful=False, reason=self._busy())
@@ -508,6 +510,7 @@ class ClothLodNode(Node):
                   "poses_received": self.poses_received,
                   "rejected_poses": self._rejected_poses(),
                   "rejected_requests": self.rejected["requests"],
+                  "rejected_parameters": self.rejected["parameters"],
                   "internal_errors": self.internal_errors}
         for key in ("recent_real_time_factor", "publish_rate_hz"):
             if self._last_values.get(key):

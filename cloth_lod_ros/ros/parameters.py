@@ -125,6 +125,13 @@ def validate(params, current, scene: SceneConfig):
     """
     changes = {}
     for p in params:
+        if p.name == "use_sim_time" and p.value != current("use_sim_time"):
+            # Switching it live makes rclpy create or destroy its /clock
+            # subscription while the multi-threaded executor may be using it
+            # (InvalidHandle: the node dies).  The clock source is chosen at start.
+            return SetParametersResult(successful=False, reason=(
+                "use_sim_time is read-only while the node runs; start the node with "
+                "--ros-args -p use_sim_time:=true (or false)")), scene, {}
         if p.name in LIVE:
             changes[LIVE[p.name][0]] = scene_value(p.value)
         elif p.name == "colour_by" and p.value not in COLOUR_BY:
