@@ -493,6 +493,26 @@ def test_switching_use_sim_time_live_is_refused_and_the_node_lives(running):
     assert int(node.stat("rejected_parameters")) == 2
 
 
+def test_the_integrator_and_its_tolerance_are_live(running):
+    """A user who needs real time more than accuracy switches to the paper's step."""
+    node = running()
+    assert node.spin_until(lambda: node.stats and node.stat("integrator") == "sdirk2", 10.0)
+    changes = [Parameter(name="simulation.integrator", value=ParameterValue(
+                   type=ParameterType.PARAMETER_STRING, string_value="baraff_witkin")),
+               Parameter(name="simulation.error_tolerance", value=ParameterValue(
+                   type=ParameterType.PARAMETER_DOUBLE, double_value=0.0))]
+    result = node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
+                       SetParametersAtomically.Request(parameters=changes)).result
+    assert result.successful, result.reason
+    assert node.spin_until(lambda: node.stat("integrator") == "baraff_witkin", 10.0)
+    assert float(node.stat("error_tolerance_m")) == 0.0
+    bad = node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
+                    SetParametersAtomically.Request(parameters=[Parameter(
+                        name="simulation.integrator", value=ParameterValue(
+                            type=ParameterType.PARAMETER_STRING, string_value="rk4"))])).result
+    assert not bad.successful and "integrator" in bad.reason
+
+
 def test_standard_diagnostics_carry_numbers(running, observer):
     seen = []
     sub = observer.create_subscription(DiagnosticArray, "/diagnostics", seen.append, 10)

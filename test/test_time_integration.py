@@ -206,3 +206,21 @@ def test_error_controlled_pins_and_grasp_targets_are_exact_at_every_frame():
 def test_bad_integration_settings_are_refused(key, value):
     with pytest.raises(SceneError):
         load_scene("hang_two_corners", [f"{key}={value}"])
+
+
+def test_the_time_stepping_can_change_between_steps():
+    """The node lets a user trade accuracy for speed live: the scheme and the
+    tolerance take effect at the next step; the frame period cannot change."""
+    sim = ClothSim(hanging(tolerance=1e-5, min_time_step=1e-4))
+    sim.step()
+    assert sim.stats[-1].substeps > 1
+    sim.update_parameters({"simulation.integrator": "baraff_witkin",
+                           "simulation.error_tolerance": 0.0})
+    stats = sim.step()
+    assert stats.substeps == 1 and stats.newton_iterations == 1
+    assert sim.stepper.scheme.name == "baraff_witkin"
+    with pytest.raises(SceneError):
+        sim.update_parameters({"simulation.time_step": 0.01})
+    with pytest.raises(SceneError):
+        sim.update_parameters({"simulation.integrator": "rk4"})
+    assert sim.stepper.scheme.name == "baraff_witkin"      # a refusal changes nothing

@@ -63,7 +63,7 @@ from ..sim import ClothSim, SimulationError
 from ..sim.config import SceneError, load_scene, scene_to_dict
 from . import parameters
 from .inputs import POSE_REJECTIONS, InputQueue, PoseLimits, health, judge_pose
-from .parameters import LIVE
+from .parameters import LIVE, LIVE_CHOICES
 from .recording import NodeRecording
 
 __all__ = ["ClothLodNode", "main"]
@@ -191,7 +191,7 @@ class ClothLodNode(Node):
 
     def _build_sim(self) -> None:
         overrides = {path: parameters.scene_value(self.get_parameter(name).value)
-                     for name, (path, *_) in LIVE.items()}
+                     for name, (path, *_) in [*LIVE.items(), *LIVE_CHOICES.items()]}
         if self.get_parameter("time_step").value > 0:
             overrides["simulation.time_step"] = self.get_parameter("time_step").value
         # Only recent step statistics are kept: the node may run for days.

@@ -17,8 +17,9 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from ..bag.rosbag import COMPRESSIONS
 from ..sim.cloth import live_update
 from ..sim.config import SceneConfig, SceneError
+from ..sim.timestepping import effective_tolerance
 
-__all__ = ["LIVE", "COLOUR_BY", "declare_parameters", "declare_scene_parameters",
+__all__ = ["LIVE", "LIVE_CHOICES", "COLOUR_BY", "declare_parameters", "declare_scene_parameters",
            "validate", "scene_value"]
 
 # Live-tunable scene parameters: name -> (scene path, unit, low, high); low and
@@ -37,6 +38,12 @@ LIVE = {
     "air.density": ("air.density", "kg/m^3", 0.0, 1000.0),
     "air.drag_coefficient": ("air.drag_coefficient", "", 0.0, 100.0),
     "air.wind": ("air.wind", "m/s", None, None),
+    "simulation.error_tolerance": ("simulation.error_tolerance", "m", 0.0, 1.0),
+}
+# Live scene parameters that are names: parameter -> (scene path, choices).
+LIVE_CHOICES = {
+    "simulation.integrator": ("simulation.integrator",
+                              ("sdirk2", "backward_euler", "baraff_witkin")),
 }
 COLOUR_BY = ("level", "shading")
 
@@ -98,11 +105,17 @@ def declare_scene_parameters(node, scene: SceneConfig) -> None:
     for name, (path, unit, low, high) in LIVE.items():
         section, key = path.split(".")
         value = getattr(getattr(scene, section), key)
+        if path == "simulation.error_tolerance":
+            value = effective_tolerance(scene.simulation)     # unset: what it means
         if low is None:
             node.declare_parameter(name, [float(c) for c in value], ParameterDescriptor(
                 description=f"{name} [{unit}] x, y, z"))
         else:
             node.declare_parameter(name, float(value), _float_descriptor(name, unit, low, high))
+    for name, (path, choices) in LIVE_CHOICES.items():
+        section, key = path.split(".")
+        node.declare_parameter(name, getattr(getattr(scene, section), key), ParameterDescriptor(
+            description=f"{name}: one of {', '.join(choices)}"))
 
 
 def scene_value(value):
@@ -134,6 +147,8 @@ def validate(params, current, scene: SceneConfig):
                 "--ros-args -p use_sim_time:=true (or false)")), scene, {}
         if p.name in LIVE:
             changes[LIVE[p.name][0]] = scene_value(p.value)
+        elif p.name in LIVE_CHOICES:
+            changes[LIVE_CHOICES[p.name][0]] = p.value
         elif p.name == "colour_by" and p.value not in COLOUR_BY:
             return SetParametersResult(successful=False, reason=(
                 f"colour_by must be one of {', '.join(COLOUR_BY)}, got {p.value!r}")), scene, {}

@@ -43,16 +43,23 @@ from .metrics import PointLocator
 from .state import ClothState, SimulationError, StepStats
 from .timestepping import TimeStepper
 
-__all__ = ["ClothSim", "live_update"]
+__all__ = ["ClothSim", "live_update", "LIVE_STEPPING"]
 
 log = logging.getLogger(__name__)
+
+
+#: ``simulation`` fields a running simulation can change (the time stepping).
+LIVE_STEPPING = ("integrator", "error_tolerance", "min_time_step", "newton_iterations",
+                 "newton_tolerance")
 
 
 def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
     """The scene with ``changes`` (``{"section.field": value}``) applied, validated
     as a whole; only fields a running simulation can take (material except
-    density, air, LOD except ``enabled`` and ``initial_level``).  Pure: ``scene``
-    is not modified, so a caller can validate without touching a running simulator.
+    density, air, LOD except ``enabled`` and ``initial_level``, and the time
+    stepping: ``simulation.integrator``, ``error_tolerance``, ``min_time_step``,
+    ``newton_iterations``, ``newton_tolerance``).  Pure: ``scene`` is not
+    modified, so a caller can validate without touching a running simulator.
 
     Raises:
         SceneError: a field is unknown, not live, or the result is invalid.
@@ -60,11 +67,15 @@ def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
     data = scene_to_dict(scene)
     for path, value in changes.items():
         section, _, key = str(path).partition(".")
-        # Density sets the particle masses, built once with the mesh.
-        if (section not in ("material", "air", "lod") or key not in data.get(section, {})
-                or path in ("material.density", "lod.enabled", "lod.initial_level")):
+        # Density sets the particle masses, built once with the mesh; the frame
+        # period, duration and gravity are the run's, not the stepping's.
+        if (section not in ("material", "air", "lod", "simulation")
+                or key not in data.get(section, {})
+                or path in ("material.density", "lod.enabled", "lod.initial_level")
+                or (section == "simulation" and key not in LIVE_STEPPING)):
             raise SceneError(f"{path}: not a live parameter (material.* except density, "
-                             "air.*, lod.* except enabled and initial_level)")
+                             "air.*, lod.* except enabled and initial_level, simulation."
+                             + ", simulation.".join(LIVE_STEPPING) + ")")
         data[section][key] = value
     return scene_from_dict(data)
 
@@ -294,9 +305,9 @@ class ClothSim(HeldInputs):
         Args:
             changes: ``{"section.field": value}``, e.g.
                 ``{"lod.refine_threshold": 0.002, "air.wind": [2, 0, 0]}``.
-                Only material (not density), air and LOD thresholds take effect
-                on a running simulation (the mesh, masses, pins and obstacles are
-                built once).
+                Only material (not density), air, LOD thresholds and the time
+                stepping (:data:`LIVE_STEPPING`) take effect on a running
+                simulation (the mesh, masses, pins and obstacles are built once).
 
         Raises:
             SceneError: a field is unknown, not live, or the resulting scene
@@ -306,6 +317,7 @@ class ClothSim(HeldInputs):
         self.scene = scene
         self.solver.material = scene.material
         self.solver.air = scene.air
+        self.stepper.configure(scene.simulation)
         if self.lod_policy is not None:
             self.lod_policy.config = scene.lod
             self.lod_policy.material = scene.material
