@@ -203,11 +203,18 @@ def test_opening_and_closing_a_grasp(running):
     np.testing.assert_allclose(node.grid_point(*corner), held, atol=2e-3)   # held again
 
 
+def _parameter_value(v) -> ParameterValue:
+    if isinstance(v, bool):
+        return ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=v)
+    if isinstance(v, str):
+        return ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=v)
+    return ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(v))
+
+
 def set_params(node, **values):
+    """Set parameters atomically (bool, str or a number as a double); the result."""
     request = SetParametersAtomically.Request(parameters=[
-        Parameter(name=k, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
-                                               double_value=float(v)))
-        for k, v in values.items()])
+        Parameter(name=k, value=_parameter_value(v)) for k, v in values.items()])
     return node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
                      request).result
 
@@ -482,11 +489,7 @@ def test_switching_use_sim_time_live_is_refused_and_the_node_lives(running):
     died with InvalidHandle); the clock source is chosen at start."""
     node = running("use_sim_time:=true")
     for value in (False, True, False):
-        result = node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
-                           SetParametersAtomically.Request(parameters=[Parameter(
-                               name="use_sim_time", value=ParameterValue(
-                                   type=ParameterType.PARAMETER_BOOL,
-                                   bool_value=value))])).result
+        result = set_params(node, use_sim_time=value)
         assert result.successful == value        # true is the start value: accepted
         if not value:
             assert "read-only while the node runs" in result.reason
@@ -500,19 +503,12 @@ def test_the_integrator_and_its_tolerance_are_live(running):
     """A user who needs real time more than accuracy switches to the paper's step."""
     node = running()
     assert node.spin_until(lambda: node.stats and node.stat("integrator") == "sdirk2", 10.0)
-    changes = [Parameter(name="simulation.integrator", value=ParameterValue(
-                   type=ParameterType.PARAMETER_STRING, string_value="baraff_witkin")),
-               Parameter(name="simulation.error_tolerance", value=ParameterValue(
-                   type=ParameterType.PARAMETER_DOUBLE, double_value=0.0))]
-    result = node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
-                       SetParametersAtomically.Request(parameters=changes)).result
+    result = set_params(node, **{"simulation.integrator": "baraff_witkin",
+                                 "simulation.error_tolerance": 0.0})
     assert result.successful, result.reason
     assert node.spin_until(lambda: node.stat("integrator") == "baraff_witkin", 10.0)
     assert float(node.stat("error_tolerance_m")) == 0.0
-    bad = node.call(SetParametersAtomically, "cloth_lod_node/set_parameters_atomically",
-                    SetParametersAtomically.Request(parameters=[Parameter(
-                        name="simulation.integrator", value=ParameterValue(
-                            type=ParameterType.PARAMETER_STRING, string_value="rk4"))])).result
+    bad = set_params(node, **{"simulation.integrator": "rk4"})
     assert not bad.successful and "integrator" in bad.reason
 
 
