@@ -176,8 +176,7 @@ def test_error_control_meets_its_tolerance_against_the_converged_motion(converge
 
 def test_error_control_takes_the_frame_period_when_the_cloth_is_at_rest():
     sim = ClothSim(hanging(tolerance=1e-4, newton=1, h=1 / 30))
-    sim.state.velocities[:] = 0.0
-    # A cloth lying in its static shape: settle it first with the paper's step.
+    # A cloth hanging in its static shape: settle it first with the paper's step.
     settle = ClothSim(hanging("baraff_witkin", h=1 / 30))
     for _ in range(300):
         settle.step()

@@ -98,23 +98,19 @@ def configurations(args, scene, families: list[dict],
         for run in reference.runs(args.mesh_check):
             configs.append(dict(run, family=None, threshold=None, coarsen=None,
                                 overrides=base + run["overrides"], label=names[run["kind"]]))
-    uniform = lambda level: ["lod.enabled=false", f"cloth.level={level}"]  # noqa: E731
+    def uniform(fam: dict, level: int, kind: str, suffix: str = "") -> dict:
+        return dict(key=f"{fam['key']}_uniform_L{level}", kind=kind, family=fam["key"],
+                    level=level, threshold=None, coarsen=None, time_step=h,
+                    overrides=base + _family_overrides(fam)
+                    + ["lod.enabled=false", f"cloth.level={level}"],
+                    label=f"{family_label(fam, h)}, uniform L{level}{suffix}")
+
     if reference is None:                 # same-step: each family's own reference first
-        for fam in families:
-            configs.append(dict(
-                key=f"{fam['key']}_uniform_L{ref_level}", kind="same_step", family=fam["key"],
-                level=ref_level, threshold=None, coarsen=None, time_step=h,
-                overrides=base + _family_overrides(fam) + uniform(ref_level),
-                label=f"{family_label(fam, h)}, uniform L{ref_level} (reference)"))
+        configs += [uniform(fam, ref_level, "same_step", " (reference)") for fam in families]
     for fam in families:
         name = family_label(fam, h)
         levels = sorted(set(args.levels) - ({ref_level} if reference is None else set()))
-        for level in levels:
-            configs.append(dict(
-                key=f"{fam['key']}_uniform_L{level}", kind="uniform", family=fam["key"],
-                level=level, threshold=None, coarsen=None, time_step=h,
-                overrides=base + _family_overrides(fam) + uniform(level),
-                label=f"{name}, uniform L{level}"))
+        configs += [uniform(fam, level, "uniform") for level in levels]
         for level in sorted(set(args.max_levels)):
             for thr in sorted(set(args.thresholds)):
                 coarsen = thr * args.coarsen_ratio
