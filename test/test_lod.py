@@ -276,3 +276,81 @@ def test_criterion_reuses_the_force_evaluation_exactly():
     second = evaluation()
     assert second is not first
     assert evaluation() is second
+
+
+# -- cadence: batched merges, refinement look-ahead and rounds ---------------------
+
+def test_merges_wait_for_their_interval_and_refinement_does_not():
+    """``merge_interval`` batches merges to every k-th check (one new pattern
+    instead of k); refinement still happens at every check."""
+    sim = ClothSim(load_scene("hang_two_corners", ["cloth.level=5", "lod.merge_interval=3"]))
+    stats = [sim.step() for _ in range(int(2.0 / sim.time_step))]
+    merge_steps = [s.step_index for s in stats if s.merges]
+    refine_steps = [s.step_index for s in stats if s.refines]
+    assert len(merge_steps) > 5 and all(i % 3 == 0 for i in merge_steps)
+    assert any(i % 3 for i in refine_steps)            # refinement is not held back
+
+
+def _swinging(check_interval=1):
+    sim = ClothSim(load_scene("hang_two_corners",
+                              ["cloth.level=5", f"lod.check_interval={check_interval}"]))
+    for _ in range(12):
+        sim.step()
+    return sim
+
+
+def test_lookahead_refines_hinges_about_to_cross_the_threshold():
+    """With ``lookahead`` τ a hinge is refined when ``θ + τ θ̇`` is over the
+    threshold; with τ = 0 the decision is the paper's."""
+    sim = _swinging()
+    h = sim.hierarchy
+    args = (h, sim.elements, sim.vertex_ids, sim.triangle_ids, sim.positions, sim.velocities,
+            sim.masses, sim.time, sim._held_nodes())
+    now = sim.lod_policy.decide(*args, simplify=False)
+    zero = sim.lod_policy.decide(*args, simplify=False, lookahead=0.0)
+    ahead = sim.lod_policy.decide(*args, simplify=False, lookahead=0.1)
+    assert now.refine == zero.refine
+    assert set(now.refine) < set(ahead.refine)          # strictly more, nothing lost
+    # Every extra triangle belongs to a hinge whose extrapolated deviation is over.
+    m = hinge_measures(sim.elements, sim.scene.material.bend_stiffness, sim.positions,
+                       sim.velocities)
+    extrapolated = curvature_estimate(np.clip(m.angle + 0.1 * m.rate, -np.pi, np.pi), m.height)
+    over = extrapolated > sim.scene.lod.refine_threshold
+    flagged = set(sim.triangle_ids[sim.elements.hinge_triangles[over].ravel()].tolist())
+    extra = set(ahead.refine) - set(now.refine)
+    assert extra <= flagged | set(now.refine)
+
+
+def test_a_pass_in_rounds_refines_as_deep_as_that_many_checks():
+    """``adapt(rounds=k)`` refines the triangles a round made again while they
+    are still too curved: from a coarse mesh it reaches deeper levels than one
+    round, never beyond the maximum, and the mesh stays a valid 4-8 mesh."""
+    def adapted(rounds):
+        sim = ClothSim(lod_scene(max_level=6, initial_level=1))
+        u, v = sim.rest_uv[:, 0], sim.rest_uv[:, 1]
+        radius = 0.25                                   # rolled about the v axis
+        sim.state.positions[:] = np.column_stack(
+            [radius * np.sin(u / radius), v, radius * (1 - np.cos(u / radius))])
+        sim.adapt(simplify=False, rounds=rounds)
+        sim.hierarchy.check()
+        return sim
+    one, three = adapted(1), adapted(3)
+    assert three.triangle_levels.max() <= 6
+    assert three.mesh.triangle_count > one.mesh.triangle_count
+    # Deeper where it curves (the pin patches are at level 6 from the start).
+    assert three.triangle_levels.mean() > one.triangle_levels.mean() + 0.2
+
+
+def test_checking_every_few_steps_stays_close_to_checking_every_step():
+    """A mesh checked every 4 steps (look-ahead and rounds) follows the same
+    motion as one checked every step: within the adaptive mesh's own error."""
+    every = ClothSim(load_scene("hang_two_corners", ["cloth.level=5"]))
+    fourth = ClothSim(load_scene("hang_two_corners", ["cloth.level=5", "lod.check_interval=4"]))
+    uv = np.stack(np.meshgrid(np.linspace(0, 1, 11), np.linspace(0, 1, 11)), -1).reshape(-1, 2)
+    for _ in range(int(1.0 / every.time_step)):
+        every.step()
+        fourth.step()
+    rms, _ = rms_and_max_distance(every.sample(uv), fourth.sample(uv))
+    assert rms < 0.01                                   # m, on a 1 m cloth
+    assert sum(s.refines + s.merges > 0 for s in fourth.stats) \
+        < 0.5 * sum(s.refines + s.merges > 0 for s in every.stats)

@@ -137,3 +137,21 @@ def test_pattern_assembly_matches_a_dense_reference():
     for i in range(mesh.vertex_count):
         np.testing.assert_array_equal(blocks[i], dense[3 * i:3 * i + 3, 3 * i:3 * i + 3])
     assert sp.issparse(assembled) and assembled.blocksize == (3, 3)
+
+
+def test_csr_operator_products_equal_scipys():
+    """CsrOperator calls scipy's compiled CSR kernel directly: same numbers as
+    ``A @ x``, for any sparse input format, and falls back for other inputs."""
+    from cloth_lod_ros.sim.linear import CsrOperator
+    rng = np.random.default_rng(5)
+    a = sp.random(60, 45, density=0.1, random_state=7, format="coo")
+    a = sp.coo_matrix((np.concatenate([a.data, [1.5]]), (np.concatenate([a.row, [a.row[0]]]),
+                                                          np.concatenate([a.col, [a.col[0]]]))),
+                      shape=a.shape)                  # a duplicate entry, summed
+    x = rng.normal(size=45)
+    op = CsrOperator(a)
+    np.testing.assert_allclose(op @ x, a.tocsr() @ x, rtol=1e-14, atol=1e-14)
+    np.testing.assert_allclose(op @ x[::-1][::-1].copy(), a @ x, rtol=1e-14, atol=1e-14)
+    block = rng.normal(size=(45, 2))
+    np.testing.assert_allclose(op @ block, a @ block, rtol=1e-14)
+    assert op.shape == (60, 45)

@@ -163,7 +163,9 @@ class ClothSim(HeldInputs):
         self.masses = h.masses[self.vertex_ids]
         self.state = ClothState(h.x[self.vertex_ids].copy(), h.v[self.vertex_ids].copy(),
                                 self.state.time)
-        self.solver.reset_topology(self.elements, self.mesh.uv)
+        # The sparsity pattern is built by the first solve on this topology:
+        # a LOD pass that refines in rounds adopts several meshes in a row.
+        self.solver.reset_topology(uv=self.mesh.uv)
         self._locator = None
         # A holding patch (pin or grasp) holds the material inside it: particles
         # that splits made there are held too (else a patch on a coarse mesh
@@ -245,7 +247,15 @@ class ClothSim(HeldInputs):
             # here on their own: the full force evaluation waits until the mesh
             # is final for this step, so none is made for a topology that the
             # criterion then changes (most adaptive steps change it).
-            refines, merges = self.adapt()
+            # Merges are never urgent (a diamond left fine a few steps longer
+            # costs only time), while every pass that changes the topology
+            # costs a new sparsity pattern and factorisation analysis: they are
+            # batched every merge_interval checks.  Refinement is checked at
+            # every one, as it is what keeps the error down.
+            check = self.step_count // self.scene.lod.check_interval
+            refines, merges = self.adapt(
+                simplify=check % self.scene.lod.merge_interval == 0,
+                rounds=self.scene.lod.check_interval)
             lod_ms = 1e3 * (_time.perf_counter() - lod_start)
         for g in self.grasps:
             if g.closed:
@@ -254,6 +264,9 @@ class ClothSim(HeldInputs):
         new_state, report, contacts, steps = self.stepper.advance(
             self.elements, self.masses, self.state, held, h)
         new_state.time = next_time          # not the sum of the substeps' roundings
+        # The new topology's sparsity pattern is built by its first solve; it
+        # is LOD bookkeeping, not solving.
+        lod_ms += self.solver.take_pattern_ms()
         self.contacts = contacts
         self._contacts_version = self.hierarchy.version if self.hierarchy is not None else 0
         if not (np.isfinite(report.residual)
@@ -360,35 +373,46 @@ class ClothSim(HeldInputs):
             self._adopt_hierarchy()
         return ops
 
-    def adapt(self) -> tuple[int, int]:
+    def adapt(self, simplify: bool = True, rounds: int = 1) -> tuple[int, int]:
         """Evaluate the LOD criterion on the current state and refine/simplify now.
 
         ``step()`` calls this every ``lod.check_interval`` steps, before the
         step's force evaluation: the criterion computes the hinges' angles and
-        gradients only.  Returns ``(splits, merges)`` performed.
+        gradients only.  With ``rounds`` > 1 the criterion is evaluated again
+        on the triangles a round has just made and they are refined further,
+        up to ``rounds`` times in all: what checking at each of that many
+        steps would have refined one level at a time (merges: first round
+        only).  Returns ``(splits, merges)`` performed.
         """
-        h, time = self.hierarchy, self.state.time
-        held_nodes = self._held_nodes()
-        detail_points = np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
-        in_contact = np.zeros(len(self.vertex_ids), dtype=bool)
-        if (self.contacts is not None and len(self.contacts)
-                and self._contacts_version == h.version):     # same compact numbering
-            in_contact[self.contacts.indices] = True
-        decision = self.lod_policy.decide(
-            h, self.elements, self.vertex_ids, self.triangle_ids, self.state.positions,
-            self.state.velocities, self.masses, time, held_nodes, detail_points=detail_points,
-            in_contact=in_contact,
-            supported=self._merge_would_sink if self.obstacles else None)
-        if not decision.refine and not decision.merge:
-            return 0, 0
-        self._sync_hierarchy()
-        splits, merges = LodPolicy.apply(h, decision, time,
-                                         log=self._step_operations)
-        if splits or merges:
-            if self.obstacles and splits:
-                self._lift_new_particles()
-            self._adopt_hierarchy()
-        return splits, merges
+        lookahead = (self.scene.lod.check_interval - 1) * self.time_step
+        total_splits = total_merges = 0
+        for round_index in range(max(1, int(rounds))):
+            h, time = self.hierarchy, self.state.time
+            held_nodes = self._held_nodes()
+            detail_points = np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
+            in_contact = np.zeros(len(self.vertex_ids), dtype=bool)
+            if (self.contacts is not None and len(self.contacts)
+                    and self._contacts_version == h.version):     # same compact numbering
+                in_contact[self.contacts.indices] = True
+            decision = self.lod_policy.decide(
+                h, self.elements, self.vertex_ids, self.triangle_ids, self.state.positions,
+                self.state.velocities, self.masses, time, held_nodes,
+                detail_points=detail_points, in_contact=in_contact,
+                supported=self._merge_would_sink if self.obstacles else None,
+                simplify=simplify and round_index == 0, lookahead=lookahead)
+            if not decision.refine and not decision.merge:
+                break
+            self._sync_hierarchy()
+            splits, merges = LodPolicy.apply(h, decision, time, log=self._step_operations)
+            if splits or merges:
+                if self.obstacles and splits:
+                    self._lift_new_particles()
+                self._adopt_hierarchy()
+            total_splits += splits
+            total_merges += merges
+            if not splits:
+                break
+        return total_splits, total_merges
 
     def _lift_new_particles(self) -> None:
         """Put particles just made by splits that lie inside an obstacle's offset

@@ -244,6 +244,9 @@ class LodConfig:
                                 doc="a triangle must exist this long before a merge removes it")
     check_interval: int = _spec("int", "steps", ge=1, default=1,
                                 doc="evaluate the criterion every this many steps")
+    merge_interval: int = _spec("int", "checks", ge=1, default=1,
+                                doc="simplify (merge) at every this many criterion checks; "
+                                    "refinement is checked at every one")
     detail_level: int = _spec("int", "", ge=0, le=12, default=0,
                               doc="refine to at least this level near closed grasps and "
                                   "along contact borders (0: off)")

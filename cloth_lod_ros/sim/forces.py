@@ -320,31 +320,53 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
     tri_blocks = hinge_blocks = None
     if with_blocks:
         # Blocks are laid out (element, i, a, j, b): entry [i, a, j, b] is row
-        # 3·v_i + a, column 3·v_j + b, so each term is a broadcast outer product.
+        # 3·v_i + a, column 3·v_j + b.  Every membrane term has the form
+        # Σ_pq c_p[i] c_q[j] Q_pq[a, b] (p, q ∈ {u, v}; c_u, c_v the coefficient
+        # vectors of w_u, w_v): form the 2×2 grid of 3×3 matrices Q per
+        # triangle, then all nine corner pairs by batched products (about 2x
+        # faster than summing outer products of (t, 3, 3, 3, 3) arrays).
         cK, cD = stiffness_weight, damping_weight
-        # Stretch: coef_i coef_j k_s A [(cK + cD β) ŵŵᵀ + cK max(1 − 1/|w|, 0)(I − ŵŵᵀ)]
-        #   = (g gᵀ)·(α − β') + (coef coefᵀ ⊗ I)·β' with g = coef ⊗ ŵ.
-        tri_blocks = np.zeros((len(tri), 3, 3, 3, 3))
-        for coef, direction, tension, damp in ((cu, dir_u, tens_u, bs), (cv, dir_v, tens_v, bs)):
-            along = ks * area * (cK + cD * damp)                 # (t,)
-            across = ks * area * cK * tension[:, 0, 0]           # (t,)
-            g = coef[:, :, None] * direction[:, None, :]          # (t, 3, 3)
-            tri_blocks += (along - across)[:, None, None, None, None] * (
-                g[:, :, :, None, None] * g[:, None, None, :, :])
-            scalar = across[:, None, None] * coef[:, :, None] * coef[:, None, :]
-            idx = np.arange(3)
-            tri_blocks[:, :, idx, :, idx] += scalar[None]
-        shear_scale = (cK + cD * bsh) * ksh
-        tri_blocks += shear_scale * (grad_s[:, :, :, None, None] * grad_s[:, None, None, :, :])
+        t_count = len(tri)
+        # Q laid out [t, p, a, q, b] so that the products below are batched matmuls.
+        q_grid = np.empty((t_count, 2, 3, 2, 3))
+        # Shear: ∇C = √A (c_u ⊗ w_v + c_v ⊗ w_u), so (∇C ∇Cᵀ) gives Q_uu = A w_v w_vᵀ,
+        # Q_uv = A w_v w_uᵀ, Q_vu = A w_u w_vᵀ, Q_vv = A w_u w_uᵀ (times the weight).
+        shear_area = ((cK + cD * bsh) * ksh) * area
+        # Stretch along one direction: k_s A [(cK + cD β) ŵŵᵀ + cK max(1 − 1/|w|, 0)(I − ŵŵᵀ)].
+        along = ks * area * (cK + cD * bs)
+        for p, (outer, tension, other) in enumerate(((outer_u, tens_u, wv),
+                                                      (outer_v, tens_v, wu))):
+            across = ks * area * cK * tension[:, 0, 0]
+            block = (along - across)[:, None, None] * outer
+            block += (shear_area[:, None, None] * other[:, :, None]) * other[:, None, :]
+            block[:, [0, 1, 2], [0, 1, 2]] += across[:, None]
+            q_grid[:, p, :, p, :] = block
+        mixed = (shear_area[:, None, None] * wv[:, :, None]) * wu[:, None, :]
+        q_grid[:, 0, :, 1, :] = mixed
+        q_grid[:, 1, :, 0, :] = mixed.transpose(0, 2, 1)
+        # R[t, p, a, j, b] = Σ_q c_q[j] Q_pq[a, b]; then [i, (a j b)] = Σ_p c_p[i] R_p.
+        # The air's face block (the same 3×3 for all nine corner pairs) rides
+        # along as a third term with c = (1, 1, 1).
+        coefficients = np.stack([cu, cv], axis=1)                    # (t, q, j)
+        reduced = np.empty((t_count, 3, 3, 3, 3))
+        reduced[:, :2] = np.matmul(coefficients.transpose(0, 2, 1)[:, None],
+                                   q_grid.reshape(t_count, 6, 2, 3)).reshape(t_count, 2, 3, 3, 3)
+        mix = np.empty((t_count, 3, 3))                              # (t, i, p)
+        mix[:, :, 0], mix[:, :, 1] = cu, cv
+        terms = 2
+        if air is not None:
+            air_force, air_face = _air_face_terms(elements, air, x, v, damping_weight, True)
+            force += air_force
+            reduced[:, 2] = air_face[:, :, None, :]
+            mix[:, :, 2] = 1.0
+            terms = 3
+        tri_blocks = np.matmul(mix[:, :, :terms], reduced[:, :terms].reshape(t_count, terms, 27)) \
+            .reshape(t_count, 3, 3, 3, 3)
         g = grad_b.reshape(len(grad_b), 12)
         hinge_blocks = (((cK + cD * bb) * kb * weight)[:, None, None]
                         * g[:, :, None] * g[:, None, :]).reshape(len(g), 4, 3, 4, 3)
-
-    if air is not None:
-        air_force, air_blocks = air_forces(elements, air, x, v, damping_weight, with_blocks)
-        force += air_force
-        if tri_blocks is not None and air_blocks is not None:
-            tri_blocks += air_blocks
+    elif air is not None:
+        force += _air_face_terms(elements, air, x, v, damping_weight, False)[0]
 
     strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
     return Evaluation(
@@ -393,17 +415,31 @@ def air_forces(elements: Elements, air, x: np.ndarray, v: np.ndarray,
         ``(force (n, 3) N, blocks (t, 3, 3, 3, 3) or None)``, blocks laid out as
         :attr:`Evaluation.triangle_blocks`.
     """
+    force, face = _air_face_terms(elements, air, x, v, damping_weight, with_blocks)
+    if face is None:
+        return force, None
+    return force, np.broadcast_to(face[:, None, :, None, :],
+                                  (len(face), 3, 3, 3, 3)).copy()
+
+
+def _air_face_terms(elements: Elements, air, x: np.ndarray, v: np.ndarray,
+                    damping_weight: float, with_blocks: bool):
+    """:func:`air_forces` with each face's block as one ``(t, 3, 3)`` matrix
+    (it is the same for all nine corner pairs), or None without blocks."""
     tri = elements.triangles
     n_vertices = elements.vertex_count
     coefficient = 0.5 * air.density * air.drag_coefficient
     if coefficient == 0.0 or not len(tri):
-        blocks = np.zeros((len(tri), 3, 3, 3, 3)) if with_blocks else None
-        return np.zeros((n_vertices, 3)), blocks
+        face = np.zeros((len(tri), 3, 3)) if with_blocks else None
+        return np.zeros((n_vertices, 3)), face
     xt = x[tri]
     cross = _cross(xt[:, 1] - xt[:, 0], xt[:, 2] - xt[:, 0])      # |cross| = 2 A
     twice_area = np.sqrt(_dot(cross, cross))
     normal = cross / np.maximum(twice_area, np.finfo(float).tiny)[:, None]  # 0 if collapsed
-    v_rel = v[tri].mean(axis=1) - np.asarray(air.wind, dtype=float)
+    vt = v[tri]
+    # The corners' mean velocity (an explicit sum: np.mean over an axis of
+    # three is several times slower), relative to the wind.
+    v_rel = (vt[:, 0] + vt[:, 1] + vt[:, 2]) / 3.0 - np.asarray(air.wind, dtype=float)
     v_n = _dot(normal, v_rel)
     k = coefficient * 0.5 * twice_area                               # ½ ρ C_d A, kg/m
     corner = (-k * np.abs(v_n) * v_n / 3.0)[:, None] * normal       # N, each corner
@@ -411,9 +447,8 @@ def air_forces(elements: Elements, air, x: np.ndarray, v: np.ndarray,
     blocks = None
     if with_blocks:
         # −∂f_i/∂v_j = (2 k |v_n| / 9) n nᵀ for every corner pair (i, j).
-        outer = (damping_weight * 2.0 * k * np.abs(v_n) / 9.0)[:, None, None] \
+        blocks = (damping_weight * 2.0 * k * np.abs(v_n) / 9.0)[:, None, None] \
             * normal[:, :, None] * normal[:, None, :]                 # (t, 3, 3)
-        blocks = np.broadcast_to(outer[:, None, :, None, :], (len(tri), 3, 3, 3, 3)).copy()
     return force, blocks
 
 

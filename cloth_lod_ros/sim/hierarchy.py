@@ -174,21 +174,33 @@ class Hierarchy48:
         return self.tri_end - 1
 
     def _activate(self, t: int, time: float) -> None:
-        a, b, c = (int(i) for i in self.tri[t])
+        # Scalar Python here, not fancy indexing: every split and merge calls
+        # this a few times, and numpy's per-call overhead would dominate.
+        a, b, c = self.tri[t].tolist()
+        edges = self._edges
         for e in (_key(a, b), _key(b, c), _key(c, a)):
-            self._edges.setdefault(e, []).append(t)
-        self.mass_units[[a, b, c]] += 2.0 ** -int(self.level[t])
+            edges.setdefault(e, []).append(t)
+        units = 2.0 ** -int(self.level[t])
+        mass_units = self.mass_units
+        mass_units[a] += units
+        mass_units[b] += units
+        mass_units[c] += units
         self.tri_active[t] = True
         self.birth[t] = time
 
     def _deactivate(self, t: int) -> None:
-        a, b, c = (int(i) for i in self.tri[t])
+        a, b, c = self.tri[t].tolist()
+        edges = self._edges
         for e in (_key(a, b), _key(b, c), _key(c, a)):
-            users = self._edges[e]
+            users = edges[e]
             users.remove(t)
             if not users:
-                del self._edges[e]
-        self.mass_units[[a, b, c]] -= 2.0 ** -int(self.level[t])
+                del edges[e]
+        units = 2.0 ** -int(self.level[t])
+        mass_units = self.mass_units
+        mass_units[a] -= units
+        mass_units[b] -= units
+        mass_units[c] -= units
         self.tri_active[t] = False
 
     # -- queries ------------------------------------------------------------

@@ -120,6 +120,7 @@ class ImplicitStageSolver:
         self.backend = make_solver(solver_config.method, solver_config.tolerance,
                                    solver_config.max_iterations, geometry)
         self._pattern: SparsePattern | None = None
+        self.pattern_ms = 0.0
         self._uv: np.ndarray | None = None
         self._warm: dict = {}
         self._evaluated = None
@@ -139,9 +140,17 @@ class ImplicitStageSolver:
             self._new_pattern(elements)
 
     def _new_pattern(self, elements: Elements) -> None:
+        start = _time.perf_counter()
         self._pattern = SparsePattern(elements.vertex_count,
                                       [elements.triangles, elements.hinge_vertices])
         self.backend.reset_topology(self._pattern, self._uv)
+        self.pattern_ms += 1e3 * (_time.perf_counter() - start)
+
+    def take_pattern_ms(self) -> float:
+        """Milliseconds spent building sparsity patterns since the last call
+        (LOD bookkeeping: a topology change pays it)."""
+        ms, self.pattern_ms = self.pattern_ms, 0.0
+        return ms
 
     def evaluate(self, elements: Elements, x: np.ndarray, v: np.ndarray, gh: float):
         """Forces, energies and system blocks (weights ``γh²``, ``γh``) at ``(x, v)``.

@@ -62,13 +62,14 @@ class HingeMeasures:
 
     Attributes:
         deviation: d in m; rate: dθ/dt in rad/s; bend_force: largest bend force
-        on the hinge's four particles, N; angle: θ in rad.
+        on the hinge's four particles, N; angle: θ in rad; height: L in m.
     """
 
     deviation: np.ndarray
     rate: np.ndarray
     bend_force: np.ndarray
     angle: np.ndarray
+    height: np.ndarray
 
 
 def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
@@ -82,7 +83,7 @@ def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
     hv = elements.hinge_vertices
     if len(hv) == 0:
         empty = np.zeros(0)
-        return HingeMeasures(empty, empty, empty, empty)
+        return HingeMeasures(empty, empty, empty, empty, empty)
     if evaluation is not None:
         theta, grad = evaluation.hinge_angle, evaluation.hinge_gradient
     else:
@@ -91,7 +92,7 @@ def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
     height = 0.5 * (1.0 / grad_norm[:, 2] + 1.0 / grad_norm[:, 3])
     rate = np.einsum("hkd,hkd->h", grad, v[hv])
     force = bend_stiffness * elements.hinge_weight * np.abs(theta) * grad_norm.max(axis=1)
-    return HingeMeasures(curvature_estimate(theta, height), rate, force, theta)
+    return HingeMeasures(curvature_estimate(theta, height), rate, force, theta, height)
 
 
 @dataclass
@@ -129,7 +130,8 @@ class LodPolicy:
                triangle_ids: np.ndarray, x: np.ndarray, v: np.ndarray, masses: np.ndarray,
                time: float, held: np.ndarray, detail_points: np.ndarray | None = None,
                in_contact: np.ndarray | None = None, supported=None,
-               evaluation=None) -> LodDecision:
+               evaluation=None, simplify: bool = True,
+               lookahead: float = 0.0) -> LodDecision:
         """Choose operations for the active mesh described by the compact arrays.
 
         Args:
@@ -149,13 +151,24 @@ class LodPolicy:
                 edge into it); those are not merged.
             evaluation: the force evaluation of this state, to reuse its hinge
                 angles and gradients.
+            simplify: also look for merges (False: refinements only; the
+                merge tests, the dearest part of the criterion, are skipped).
+            lookahead: s until the criterion is next evaluated.  A hinge is
+                refined now if its deviation exceeds the threshold now or
+                would at ``θ + lookahead · dθ/dt`` (so a mesh checked every k
+                steps is refined as early as one checked at every step; 0:
+                the paper's rule).
         """
         cfg = self.config
         measures = hinge_measures(elements, self.material.bend_stiffness, x, v, evaluation)
         hinge_tris = elements.hinge_triangles
+        deviation = measures.deviation
+        if lookahead > 0.0 and len(deviation):
+            ahead = np.clip(measures.angle + lookahead * measures.rate, -np.pi, np.pi)
+            deviation = np.maximum(deviation, curvature_estimate(ahead, measures.height))
         # Refine: both triangles of each over-curved hinge, most curved first.
-        over = np.flatnonzero(measures.deviation > cfg.refine_threshold)
-        order = over[np.argsort(-measures.deviation[over], kind="stable")]
+        over = np.flatnonzero(deviation > cfg.refine_threshold)
+        order = over[np.argsort(-deviation[over], kind="stable")]
         refine = []
         detail = self._detail_triangles(elements, hierarchy, triangle_ids, detail_points,
                                         in_contact)
@@ -168,7 +181,7 @@ class LodPolicy:
 
         # Simplify: split particles all of whose hinges are flat and settled.
         merge, energy, kinetic, bound = [], np.zeros(0), np.zeros(0), np.zeros(0)
-        vertices, kids = hierarchy.split_vertices()
+        vertices, kids = hierarchy.split_vertices() if simplify else (np.zeros(0, int), None)
         if len(vertices):
             unsettled = ((measures.deviation >= cfg.coarsen_threshold)
                          | (np.abs(measures.rate) >= cfg.max_hinge_rate)

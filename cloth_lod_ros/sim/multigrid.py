@@ -29,7 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .linear import block_diagonal_matrix
+from .linear import CsrOperator, block_diagonal_matrix
 
 __all__ = ["lattice_hierarchy", "block_transfers", "VCycle"]
 
@@ -150,7 +150,10 @@ class VCycle:
         self.levels = []
         inverse_diagonal = fine_inverse_diagonal
         for p3, r3 in transfers:
-            self.levels.append([matrix, inverse_diagonal, p3, r3,
+            # The cycle's products go through CsrOperator (no scipy dispatch);
+            # the Galerkin product needs the scipy matrices.
+            self.levels.append([CsrOperator(matrix), CsrOperator(inverse_diagonal),
+                                CsrOperator(p3), CsrOperator(r3),
                                 self._largest_eigenvalue(matrix, inverse_diagonal)])
             matrix = r3 @ (matrix @ p3)
             inverse_diagonal = _block_diagonal_inverse(matrix)
@@ -187,7 +190,8 @@ class VCycle:
         positive definite preconditioner for the new one; rebuilding them (the
         Galerkin products) costs about as much as the whole solve.
         """
-        self.levels[0][0], self.levels[0][1] = matrix, inverse_diagonal
+        self.levels[0][0] = CsrOperator(matrix)
+        self.levels[0][1] = CsrOperator(inverse_diagonal)
 
     def __call__(self, residual: np.ndarray) -> np.ndarray:
         """An approximation of ``matrix⁻¹ residual`` (``(3n,)``)."""

@@ -106,17 +106,34 @@ class LdlDirect(LinearSolver):
 
     def _upper_layout(self, projected: sp.bsr_matrix):
         """The permutation from BSR data to the upper triangle in CSC order (once
-        per topology: the projected system has the topology's pattern)."""
+        per topology: the projected system has the topology's pattern).
+
+        By symmetry the upper triangle's column ``3J + b`` holds, top to
+        bottom, ``A[3J + b, 3I + a]`` for the blocks ``(J, I)`` of block row J
+        with ``I ≤ J`` (BSR stores them in increasing I) and ``a = 0..2``
+        (``a ≤ b`` on the diagonal block): entry ``9k + 3b + a`` of the data.
+        So the order is pure arithmetic on the pattern, no sort.
+        """
         n = projected.shape[0] // 3
-        rows_b = np.repeat(np.arange(n), np.diff(projected.indptr))
-        cols_b = projected.indices
+        indptr, cols_b = projected.indptr, projected.indices
+        block_rows = np.repeat(np.arange(n), np.diff(indptr))
+        # Blocks on or below the diagonal: a prefix of each block row.
+        lower_count = np.bincount(block_rows[cols_b <= block_rows], minlength=n)
+        # Layout (J, b, k, a): each row J spans 3 · lower_count[J] blocks.
+        span = 3 * lower_count
+        row_of = np.repeat(np.arange(n), span)
+        within = np.arange(len(row_of)) - np.repeat(np.cumsum(span) - span, span)
+        b = within // lower_count[row_of]
+        k = indptr[row_of] + within % lower_count[row_of]
         a = np.arange(3)
-        rows = (3 * rows_b[:, None, None] + a[None, :, None]).repeat(3, 2).ravel()
-        cols = (3 * cols_b[:, None, None] + a[None, None, :]).repeat(3, 1).ravel()
-        keep = np.flatnonzero(rows <= cols)
-        order = keep[np.lexsort((rows[keep], cols[keep]))]
-        indptr = np.searchsorted(cols[order], np.arange(3 * n + 1)).astype(np.int32)
-        return order, rows[order].astype(np.int32), indptr
+        data_index = (9 * k + 3 * b)[:, None] + a                  # (m, 3)
+        rows = 3 * cols_b[k][:, None] + a
+        cols = (3 * row_of + b)[:, None]
+        keep = rows <= cols                  # the diagonal block's upper part
+        order = data_index[keep]
+        counts = np.bincount(np.broadcast_to(cols, rows.shape)[keep], minlength=3 * n)
+        col_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+        return order, rows[keep].astype(np.int32), col_ptr
 
     def solve(self, matrix, rhs, constraints, guess):
         projected, b, z = project_system(matrix, rhs, constraints, self.pattern)

@@ -38,8 +38,10 @@ class StepStats:
 
     ``vertex_count``/``triangle_count``/``triangles_per_level`` describe the
     mesh the step simulated (after this step's refines and merges);
-    ``step_ms`` includes ``lod_ms`` (criterion, operations and the refresh of
-    compact arrays) and the physics (``force_ms + assembly_ms + solve_ms``).
+    ``step_ms`` includes ``lod_ms`` (criterion, operations, the refresh of
+    compact arrays and the new sparsity pattern; a direct solver's symbolic
+    analysis of it counts in ``solve_ms``) and the physics
+    (``force_ms + assembly_ms + solve_ms``).
     A step advances one frame (``simulation.time_step``): ``substeps`` is how
     many integrator steps covered it (1 with a fixed step unless its stretch
     grew too fast; more under error control, see
