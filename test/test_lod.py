@@ -69,7 +69,8 @@ def test_deviation_of_a_cylinder_is_its_sagitta():
 
 def test_flat_still_cloth_never_refines_and_coarsens_to_the_base():
     sim = ClothSim(lod_scene(max_level=5, gravity=(0, 0, 0), initial_level=2))
-    for _ in range(30):
+    # Two merge waves, each after min_lifetime (12 steps), at checks every 4 steps.
+    for _ in range(48):
         s = sim.step()
         assert s.refines == 0
     assert sim.mesh.triangle_count == 32           # flat and still: nothing to model
@@ -283,7 +284,7 @@ def test_criterion_reuses_the_force_evaluation_exactly():
 def test_merges_wait_for_their_interval_and_refinement_does_not():
     """``merge_interval`` batches merges to every k-th check (one new pattern
     instead of k); refinement still happens at every check."""
-    sim = ClothSim(load_scene("hang_two_corners", ["cloth.level=5", "lod.merge_interval=3"]))
+    sim = ClothSim(load_scene("hang_two_corners", ["cloth.level=5", "lod.check_interval=1", "lod.merge_interval=3"]))
     stats = [sim.step() for _ in range(int(2.0 / sim.time_step))]
     merge_steps = [s.step_index for s in stats if s.merges]
     refine_steps = [s.step_index for s in stats if s.refines]
@@ -344,7 +345,7 @@ def test_a_pass_in_rounds_refines_as_deep_as_that_many_checks():
 def test_checking_every_few_steps_stays_close_to_checking_every_step():
     """A mesh checked every 4 steps (look-ahead and rounds) follows the same
     motion as one checked every step: within the adaptive mesh's own error."""
-    every = ClothSim(load_scene("hang_two_corners", ["cloth.level=5"]))
+    every = ClothSim(load_scene("hang_two_corners", ["cloth.level=5", "lod.check_interval=1"]))
     fourth = ClothSim(load_scene("hang_two_corners", ["cloth.level=5", "lod.check_interval=4"]))
     uv = np.stack(np.meshgrid(np.linspace(0, 1, 11), np.linspace(0, 1, 11)), -1).reshape(-1, 2)
     for _ in range(int(1.0 / every.time_step)):

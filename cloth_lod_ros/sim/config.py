@@ -242,8 +242,10 @@ class LodConfig:
                                        "fast: dE <= density x area x speed^2 / 2")
     min_lifetime: float = _spec("float", "s", ge=0, default=0.2,
                                 doc="a triangle must exist this long before a merge removes it")
-    check_interval: int = _spec("int", "steps", ge=1, default=1,
-                                doc="evaluate the criterion every this many steps")
+    check_interval: int = _spec("int", "steps", ge=1, default=4,
+                                doc="evaluate the criterion every this many steps, refining "
+                                    "what would cross the threshold before the next check "
+                                    "(1: every step, the paper)")
     merge_interval: int = _spec("int", "checks", ge=1, default=1,
                                 doc="simplify (merge) at every this many criterion checks; "
                                     "refinement is checked at every one")
