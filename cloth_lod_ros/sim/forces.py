@@ -281,44 +281,43 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
     cu, cv, area = elements.coef_u, elements.coef_v, elements.area
     sqrt_area = np.sqrt(area)
 
-    xt, vt = x[tri], v[tri]                         # (t, 3, 3)
-    wu = np.einsum("tk,tkd->td", cu, xt)
-    wv = np.einsum("tk,tkd->td", cv, xt)
-    wu_dot = np.einsum("tk,tkd->td", cu, vt)
-    wv_dot = np.einsum("tk,tkd->td", cv, vt)
-    len_u = np.sqrt(_dot(wu, wu))
-    len_v = np.sqrt(_dot(wv, wv))
-    dir_u = wu / len_u[:, None]
-    dir_v = wv / len_v[:, None]
+    # Membrane terms on component-major (3, t) arrays: each operation is one
+    # contiguous loop over all triangles (not t loops of length 3).
+    px, pv = x.T, v.T                                       # (3, n) views
+    corners = [tri[:, k] for k in range(3)]
+    cu0, cu1, cu2 = cu[:, 0], cu[:, 1], cu[:, 2]
+    cv0, cv1, cv2 = cv[:, 0], cv[:, 1], cv[:, 2]
+    x0, x1, x2 = (px[:, c] for c in corners)
+    v0, v1, v2 = (pv[:, c] for c in corners)
+    wu = cu0 * x0 + cu1 * x1 + cu2 * x2                     # (3, t)
+    wv = cv0 * x0 + cv1 * x1 + cv2 * x2
+    wu_dot = cu0 * v0 + cu1 * v1 + cu2 * v2
+    wv_dot = cv0 * v0 + cv1 * v1 + cv2 * v2
+    len_u = np.sqrt(_dot_soa(wu, wu))
+    len_v = np.sqrt(_dot_soa(wv, wv))
+    dir_u = wu / len_u
+    dir_v = wv / len_v
 
     # Stretch: C = √A(|w|−1), ∇_k C = √A coef_k ŵ.
     c_u, c_v = sqrt_area * (len_u - 1.0), sqrt_area * (len_v - 1.0)
-    cdot_u, cdot_v = sqrt_area * _dot(dir_u, wu_dot), sqrt_area * _dot(dir_v, wv_dot)
-    # Shear: C = √A w_u·w_v, ∇_k C = √A (coef_u_k w_v + coef_v_k w_u).
-    c_s = sqrt_area * _dot(wu, wv)
-    grad_s = sqrt_area[:, None, None] * (cu[:, :, None] * wv[:, None, :]
-                                         + cv[:, :, None] * wu[:, None, :])
-    cdot_s = np.einsum("tkd,tkd->t", grad_s, vt)
+    along_u, along_v = _dot_soa(dir_u, wu_dot), _dot_soa(dir_v, wv_dot)
+    cdot_u, cdot_v = sqrt_area * along_u, sqrt_area * along_v
+    # Shear: C = √A w_u·w_v, ∇_k C = √A (coef_u_k w_v + coef_v_k w_u), so
+    # Ċ = Σ_k ∇_k C · v_k = √A (w_v · ẇ_u + w_u · ẇ_v).
+    c_s = sqrt_area * _dot_soa(wu, wv)
+    cdot_s = sqrt_area * (_dot_soa(wv, wu_dot) + _dot_soa(wu, wv_dot))
 
-    # f_k = −k (C + βĊ) ∇_k C for each condition.
-    su = (-ks * sqrt_area * (c_u + bs * cdot_u))[:, None] * dir_u
-    sv = (-ks * sqrt_area * (c_v + bs * cdot_v))[:, None] * dir_v
-    tri_force = (cu[:, :, None] * su[:, None, :] + cv[:, :, None] * sv[:, None, :]
-                 + (-ksh * (c_s + bsh * cdot_s))[:, None, None] * grad_s)
-
-    # Kept stiffness: stretch S = ŵŵᵀ + max(1 − 1/|w|, 0)(I − ŵŵᵀ).
-    eye = np.eye(3)
-    outer_u = dir_u[:, :, None] * dir_u[:, None, :]
-    outer_v = dir_v[:, :, None] * dir_v[:, None, :]
-    tens_u = np.maximum(1.0 - 1.0 / len_u, 0.0)[:, None, None]
-    tens_v = np.maximum(1.0 - 1.0 / len_v, 0.0)[:, None, None]
-    stiff_u = outer_u + tens_u * (eye - outer_u)        # (t,3,3)
-    stiff_v = outer_v + tens_v * (eye - outer_v)
-    # (∂f/∂x) v per triangle corner.
-    kv_u = -ks * area[:, None] * np.einsum("tab,tb->ta", stiff_u, wu_dot)
-    kv_v = -ks * area[:, None] * np.einsum("tab,tb->ta", stiff_v, wv_dot)
-    tri_kv = (cu[:, :, None] * kv_u[:, None, :] + cv[:, :, None] * kv_v[:, None, :]
-              - ksh * cdot_s[:, None, None] * grad_s)
+    # f_k = −k (C + βĊ) ∇_k C for each condition; every term is coef_u_k U +
+    # coef_v_k V for two per-triangle vectors U, V (3, t).
+    shear_force = -ksh * (c_s + bsh * cdot_s) * sqrt_area
+    force_u = (-ks * sqrt_area * (c_u + bs * cdot_u)) * dir_u + shear_force * wv
+    force_v = (-ks * sqrt_area * (c_v + bs * cdot_v)) * dir_v + shear_force * wu
+    # (∂f/∂x) v with the kept stretch stiffness S = ŵŵᵀ + max(1 − 1/|w|, 0)(I − ŵŵᵀ).
+    tens_u = np.maximum(1.0 - 1.0 / len_u, 0.0)
+    tens_v = np.maximum(1.0 - 1.0 / len_v, 0.0)
+    shear_kv = -ksh * cdot_s * sqrt_area
+    kv_u = (-ks * area) * ((1.0 - tens_u) * along_u * dir_u + tens_u * wu_dot) + shear_kv * wv
+    kv_v = (-ks * area) * ((1.0 - tens_v) * along_v * dir_v + tens_v * wv_dot) + shear_kv * wu
 
     # Bend hinges.
     hv = elements.hinge_vertices
@@ -333,8 +332,8 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
         grad_b = np.zeros((0, 4, 3))
         hinge_force = hinge_kv = grad_b
 
-    force = _scatter(tri, tri_force, n) + _scatter(hv, hinge_force, n)
-    kv = _scatter(tri, tri_kv, n) + _scatter(hv, hinge_kv, n)
+    force = _scatter_membrane(tri, cu, cv, force_u, force_v, n) + _scatter(hv, hinge_force, n)
+    kv = _scatter_membrane(tri, cu, cv, kv_u, kv_v, n) + _scatter(hv, hinge_kv, n)
 
     tri_blocks = hinge_blocks = None
     if with_blocks:
@@ -353,16 +352,16 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
         shear_area = ((cK + cD * bsh) * ksh) * area
         # Stretch along one direction: k_s A [(cK + cD β) ŵŵᵀ + cK max(1 − 1/|w|, 0)(I − ŵŵᵀ)].
         along = ks * area * (cK + cD * bs)
-        for p, (outer, tension, other) in enumerate(((outer_u, tens_u, wv),
-                                                      (outer_v, tens_v, wu))):
-            across = ks * area * cK * tension[:, 0, 0]
-            block = (along - across)[:, None, None] * outer
-            block += (shear_area[:, None, None] * other[:, :, None]) * other[:, None, :]
-            block[:, [0, 1, 2], [0, 1, 2]] += across[:, None]
-            q_grid[:, p, :, p, :] = block
-        mixed = (shear_area[:, None, None] * wv[:, :, None]) * wu[:, None, :]
-        q_grid[:, 0, :, 1, :] = mixed
-        q_grid[:, 1, :, 0, :] = mixed.transpose(0, 2, 1)
+        eye = np.eye(3)[:, :, None]
+        for p, (direction, tension, other) in enumerate(((dir_u, tens_u, wv),
+                                                          (dir_v, tens_v, wu))):
+            across = ks * area * cK * tension
+            block = ((along - across) * direction[:, None] * direction[None, :]
+                     + across * eye + shear_area * other[:, None] * other[None, :])   # (3, 3, t)
+            q_grid[:, p, :, p, :] = block.transpose(2, 0, 1)
+        mixed = shear_area * wv[:, None] * wu[None, :]                                 # (3, 3, t)
+        q_grid[:, 0, :, 1, :] = mixed.transpose(2, 0, 1)
+        q_grid[:, 1, :, 0, :] = mixed.transpose(2, 1, 0)
         # R[t, p, a, j, b] = Σ_q c_q[j] Q_pq[a, b]; then [i, (a j b)] = Σ_p c_p[i] R_p.
         # The air's face block (the same 3×3 for all nine corner pairs) rides
         # along as a third term with c = (1, 1, 1).
@@ -382,8 +381,8 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
         tri_blocks = np.matmul(mix[:, :, :terms], reduced[:, :terms].reshape(t_count, terms, 27)) \
             .reshape(t_count, 3, 3, 3, 3)
         g = grad_b.reshape(len(grad_b), 12)
-        hinge_blocks = (((cK + cD * bb) * kb * weight)[:, None, None]
-                        * g[:, :, None] * g[:, None, :]).reshape(len(g), 4, 3, 4, 3)
+        scaled = ((cK + cD * bb) * kb * weight)[:, None] * g              # (h, 12)
+        hinge_blocks = (scaled[:, :, None] * g[:, None, :]).reshape(len(g), 4, 3, 4, 3)
     elif air is not None:
         force += _air_face_terms(elements, air, x, v, damping_weight, False)[0]
 
@@ -510,6 +509,18 @@ def stretch_lengths(elements: Elements, x: np.ndarray) -> np.ndarray:
     wu = np.einsum("tk,tkd->td", elements.coef_u, xt)
     wv = np.einsum("tk,tkd->td", elements.coef_v, xt)
     return np.column_stack([np.sqrt(_dot(wu, wu)), np.sqrt(_dot(wv, wv))])
+
+
+def _scatter_membrane(tri: np.ndarray, coef_u: np.ndarray, coef_v: np.ndarray,
+                      along_u: np.ndarray, along_v: np.ndarray, n: int) -> np.ndarray:
+    """Sum ``coef_u[e, k] along_u[:, e] + coef_v[e, k] along_v[:, e]`` into corner
+    ``tri[e, k]``: ``(n, 3)``.  ``along_u``, ``along_v``: ``(3, t)``."""
+    out = np.empty((n, 3))
+    flat = tri.ravel()
+    for d in range(3):
+        values = coef_u * along_u[d][:, None] + coef_v * along_v[d][:, None]   # (t, 3)
+        out[:, d] = np.bincount(flat, weights=values.ravel(), minlength=n)
+    return out
 
 
 def _scatter(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
