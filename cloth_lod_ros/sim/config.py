@@ -146,6 +146,16 @@ class ObstacleConfig:
     rounding: float = _spec("float", "m", ge=0, default=0.0,
                             doc="box: radius of its rounded edges")
     friction: float = _spec("float", "", ge=0, default=0.3, doc="Coulomb coefficient")
+    waypoints: tuple = _spec("poses", "s, m", default=(),
+                             doc="scripted pose path, [[t, x, y, z], ...] or [[t, x, y, z, "
+                                 "qx, qy, qz, qw], ...]: the centre (a plane's point) and the "
+                                 "orientation of the obstacle's frame (z = a plane's normal, "
+                                 "a cylinder's axis); linear/slerp between points, held "
+                                 "outside them; none: static unless driven live")
+    max_speed: float = _spec("float", "m/s", gt=0, default=2.0,
+                             doc="fastest the obstacle follows its target (script or live)")
+    max_angular_speed: float = _spec("float", "rad/s", gt=0, default=6.0,
+                                     doc="fastest the obstacle turns towards its target")
 
 
 @dataclass(frozen=True)
@@ -154,6 +164,11 @@ class ContactConfig:
                              doc="particles keep this distance from obstacle surfaces")
     max_correction_speed: float = _spec("float", "m/s", gt=0, default=0.5,
                                         doc="fastest push out of a penetration")
+    friction_rounds: int = _spec("int", "", ge=1, le=100, default=6,
+                                 doc="most solves per contact solve while contacts start "
+                                     "to slip (a slip front advances about one row of "
+                                     "particles per solve; a sticking cloth pushed from "
+                                     "one side needs about as many as it has rows)")
 
 
 @dataclass(frozen=True)
@@ -303,6 +318,14 @@ def _vector(value: Any, path: str, length: int) -> tuple:
     return tuple(_number(v, f"{path}[{i}]") for i, v in enumerate(value))
 
 
+def _unit_quaternion(vec: tuple, path: str) -> tuple:
+    """A quaternion ``(x, y, z, w)`` normalised (left alone when already unit)."""
+    norm = math.sqrt(sum(c * c for c in vec))
+    if norm == 0.0 or not math.isfinite(norm):
+        raise SceneError(f"field '{path}' must be a non-zero quaternion [x, y, z, w]")
+    return tuple(c / norm for c in vec) if abs(norm - 1.0) > 1e-12 else vec
+
+
 def _check_bounds(value, meta: dict, path: str) -> None:
     unit = f" {meta['unit']}" if meta["unit"] else ""
     items = value if isinstance(value, tuple) else (value,)
@@ -357,11 +380,7 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
             raise SceneError(f"field '{path}' must be one of {list(meta['choices'])}, "
                              f"got {_show(value)}")
     elif kind == "quat":
-        vec = _vector(value, path, 4)
-        norm = math.sqrt(sum(c * c for c in vec))
-        if norm == 0.0:
-            raise SceneError(f"field '{path}' must be a non-zero quaternion [x, y, z, w]")
-        out = tuple(c / norm for c in vec) if abs(norm - 1.0) > 1e-12 else vec
+        out = _unit_quaternion(_vector(value, path, 4), path)
     elif kind in ("obstacles", "grasps"):
         if not isinstance(value, (list, tuple)):
             raise SceneError(f"field '{path}' must be a list")
@@ -377,6 +396,22 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
         if not isinstance(value, (list, tuple)):
             raise SceneError(f"field '{path}' must be a list of [t, x, y, z]")
         out = tuple(_vector(p, f"{path}[{i}]", 4) for i, p in enumerate(value))
+        times = [p[0] for p in out]
+        if any(b <= a for a, b in zip(times, times[1:])):
+            raise SceneError(f"field '{path}' times must increase strictly")
+    elif kind == "poses":
+        if not isinstance(value, (list, tuple)):
+            raise SceneError(f"field '{path}' must be a list of [t, x, y, z] or "
+                             "[t, x, y, z, qx, qy, qz, qw]")
+        width = len(value[0]) if value and isinstance(value[0], (list, tuple)) else 4
+        for i, p in enumerate(value):
+            if not isinstance(p, (list, tuple)) or len(p) not in (4, 8) or len(p) != width:
+                raise SceneError(f"field '{path}[{i}]' must be [t, x, y, z] or [t, x, y, z, "
+                                 f"qx, qy, qz, qw] like the first row, got {_show(p)}")
+        out = tuple(_vector(p, f"{path}[{i}]", width) for i, p in enumerate(value))
+        if width == 8:
+            out = tuple(p[:4] + _unit_quaternion(p[4:], f"{path}[{i}]")
+                        for i, p in enumerate(out))
         times = [p[0] for p in out]
         if any(b <= a for a, b in zip(times, times[1:])):
             raise SceneError(f"field '{path}' times must increase strictly")
@@ -449,6 +484,10 @@ def scene_from_dict(data: Any) -> SceneConfig:
         if obstacle.type == "box" and obstacle.rounding >= min(obstacle.half_extents):
             raise SceneError(f"field 'obstacles[{i}].rounding' must be below the smallest "
                              "half extent")
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", obstacle.name):
+            raise SceneError(f"field 'obstacles[{i}].name' = {_show(obstacle.name)} must be "
+                             "letters, digits and underscores, not starting with a digit "
+                             "(it names ROS topics)")
     for i, grasp in enumerate(scene.grasps):
         u, v = grasp.uv
         if not (0.0 <= u <= cloth.width and 0.0 <= v <= cloth.height):
