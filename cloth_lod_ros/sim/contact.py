@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 __all__ = ["Obstacle", "Plane", "Sphere", "Cylinder", "Box", "make_obstacle",
            "ContactSet", "nearest_surface", "find_contacts", "penetrations",
@@ -235,7 +236,6 @@ class Box(Obstacle):
 
 def _matrix_quaternion(m: np.ndarray) -> np.ndarray:
     """Unit quaternion [x, y, z, w] of a rotation matrix (3, 3) (w ≥ 0)."""
-    from scipy.spatial.transform import Rotation
     q = Rotation.from_matrix(m).as_quat()
     return -q if q[3] < 0 else q
 
