@@ -42,7 +42,6 @@ session: inputs as applied, outputs as published, and the scene and parameters
 from __future__ import annotations
 
 import collections
-import logging
 import sys
 import time
 
@@ -66,6 +65,7 @@ from ..sim import ClothSim, SimulationError
 from ..sim.config import SceneError, load_scene, scene_to_dict
 from . import parameters
 from .inputs import POSE_REJECTIONS, InputQueue, PoseLimits, health, judge_pose
+from .logs import forward_library_logs
 from .parameters import LIVE, LIVE_CHOICES
 from .recording import NodeRecording
 
@@ -96,7 +96,7 @@ class ClothLodNode(Node):
 
         self.frame_id = self.get_parameter("frame_id").value
         self.publish_clock = bool(self.get_parameter("publish_clock").value)
-        _forward_library_logs(self.get_logger())
+        forward_library_logs(self.get_logger())
         self.queue = InputQueue()
         self.rejected = dict.fromkeys(POSE_REJECTIONS, 0)
         self.rejected.update(invalid=0, requests=0, parameters=0)
@@ -548,26 +548,6 @@ def _time_msg(seconds: float):
     ns = int(round(seconds * 1e9))
     msg.sec, msg.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
     return msg
-
-
-class _RosLogHandler(logging.Handler):
-    """Send the simulator's Python log records (e.g. a grasp catching up with a
-    jumped target) to the node's ROS logger."""
-
-    def __init__(self, ros_logger):
-        super().__init__(level=logging.INFO)
-        self.ros_logger = ros_logger
-
-    def emit(self, record):
-        level = {logging.WARNING: "warning", logging.ERROR: "error"}.get(record.levelno, "info")
-        getattr(self.ros_logger, level)(record.getMessage())
-
-
-def _forward_library_logs(ros_logger) -> None:
-    library = logging.getLogger("cloth_lod_ros")
-    library.handlers = [h for h in library.handlers if not isinstance(h, _RosLogHandler)]
-    library.addHandler(_RosLogHandler(ros_logger))
-    library.propagate = False
 
 
 def main(args=None) -> None:
