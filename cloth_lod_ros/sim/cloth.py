@@ -35,9 +35,9 @@ from .contact import nearest_surface
 from .forces import Elements, air_power, elastic_energies, precompute
 from .grasps import Grasp
 from .held import HeldInputs
-from .kinematics import ObstacleInputs
 from .hierarchy import Hierarchy48
 from .integrator import ImplicitStageSolver
+from .kinematics import ObstacleInputs
 from .lod import LodPolicy
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
