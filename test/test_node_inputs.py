@@ -90,6 +90,18 @@ def test_the_queue_keeps_the_newest_target_per_grasp_in_arrival_order():
     assert queue.take() == []
 
 
+def test_obstacle_targets_are_coalesced_per_obstacle_apart_from_grasps():
+    queue = InputQueue()
+    q = np.array([0, 0, 0, 1.0])
+    queue.put_target("a", np.zeros(3), q, "obstacle_target")
+    queue.put_target("a", np.full(3, 2.0), q)                         # grasp "a"
+    queue.put_target("a", np.ones(3), q, "obstacle_target")           # replaces obstacle "a"
+    items = queue.take()
+    assert [(i[0], i[1]) for i in items] == [("target", "a"), ("obstacle_target", "a")]
+    np.testing.assert_array_equal(items[0][2], np.full(3, 2.0))
+    np.testing.assert_array_equal(items[1][2], np.ones(3))
+
+
 def test_a_full_queue_refuses_commands_but_keeps_taking_targets():
     queue = InputQueue(max_commands=3)
     assert all(queue.put_command("step") for _ in range(3))

@@ -70,13 +70,15 @@ class SessionRecorder:
         namespace: prefix of the recorded topic names (the node's namespace).
         compression: ``"none"``, ``"zstd"`` or ``"lz4"`` chunk compression.
         flush_interval: s, see :class:`~cloth_lod_ros.bag.rosbag.BagWriter`.
+        grasp_names, obstacle_names: whose received pose topics are recorded.
 
     Raises:
         BagError: the bag cannot be created (unwritable or existing path).
     """
 
     def __init__(self, path, namespace: str = "/", compression: str = "zstd",
-                 flush_interval: float = 1.0, grasp_names=(), max_queued: int = 512):
+                 flush_interval: float = 1.0, grasp_names=(), max_queued: int = 512,
+                 obstacle_names=()):
         self.namespace = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self.writer = BagWriter(path, compression=compression, flush_interval=flush_interval)
         self.path = self.writer.path
@@ -96,9 +98,10 @@ class SessionRecorder:
                                   qos_profiles_yaml(durability="transient_local", depth=1))
             self.writer.add_topic(self.topic("cloth/inputs"), "std_msgs/msg/String",
                                   qos_profiles_yaml(depth=100))
-            for name in grasp_names:
-                self.writer.add_topic(self.topic(f"grasp/{name}/pose"),
-                                      "geometry_msgs/msg/PoseStamped")
+            for kind, names in (("grasp", grasp_names), ("obstacle", obstacle_names)):
+                for name in names:
+                    self.writer.add_topic(self.topic(f"{kind}/{name}/pose"),
+                                          "geometry_msgs/msg/PoseStamped")
         except BagError:
             self.writer.close()
             raise

@@ -32,6 +32,8 @@ def _apply(sim, event: dict) -> None:
     kind = event["kind"]
     if kind == "grasp_target":
         sim.set_grasp_target(event["grasp"], event["position"], event.get("orientation"))
+    elif kind == "obstacle_target":
+        sim.set_obstacle_target(event["obstacle"], event["position"], event.get("orientation"))
     elif kind == "grasp_close":
         sim.close_grasp(event["grasp"])
     elif kind == "grasp_open":

@@ -80,7 +80,7 @@ class FrameBuilder:
         if count < self._marker_count:            # a marker went away: clear stale ones
             specs.insert(0, MarkerSpec("", 0, CUBE, self.frame_id, stamp, action=DELETEALL))
         self._marker_count = count
-        specs += obstacle_markers(sim.scene.obstacles, self.frame_id, stamp)
+        specs += obstacle_markers(sim.obstacle_configs(), self.frame_id, stamp)   # where they are now
         if self._grid_uv is None:
             self._grid_uv = grid_uv(sim.scene, self.grid_resolution)
         return {

@@ -276,7 +276,9 @@ def _quaternion_from_z(axis: np.ndarray) -> np.ndarray:
 
 def obstacle_markers(obstacles, frame_id: str, stamp: tuple = (0, 0),
                      first_id: int = 10) -> list[MarkerSpec]:
-    """One marker per obstacle config (:class:`~cloth_lod_ros.sim.config.ObstacleConfig`).
+    """One marker per obstacle config (:class:`~cloth_lod_ros.sim.config.ObstacleConfig`;
+    for a running simulator, ``ClothSim.obstacle_configs()``: the configs at the
+    obstacles' current poses, so the markers follow kinematic obstacles).
 
     Planes are drawn as a thin 2 m square around their point; cylinders and discs
     as CYLINDER, spheres as SPHERE, boxes as CUBE (rounding not drawn).

@@ -7,8 +7,8 @@ the node: a bad value is a counted rejection with a reason.
 
 * :func:`judge_pose` - accept or reject one grasp pose (frame, finite values,
   orientation, stamp, workspace), returning a unit quaternion when accepted;
-* :class:`InputQueue` - thread-safe: the latest target per grasp (a newer pose
-  replaces an older one not yet applied) and a bounded FIFO of commands
+* :class:`InputQueue` - thread-safe: the latest target per grasp and per
+  obstacle (a newer pose replaces an older one not yet applied) and a bounded FIFO of commands
   (service calls, parameter changes), drained together in arrival order;
 * :func:`health` - the diagnostic level and message of a published frame.
 
@@ -52,7 +52,7 @@ class PoseLimits:
 
 def judge_pose(frame_id: str, position, orientation, stamp_sec: int, stamp_nanosec: int,
                now_s: float, limits: PoseLimits):
-    """Judge one pose.
+    """Judge one pose (of a grasp or an obstacle).
 
     Args:
         frame_id: the header's frame.
@@ -108,9 +108,14 @@ class InputQueue:
         self._targets: dict[str, tuple[int, tuple]] = {}
         self._commands: list[tuple[int, tuple]] = []
 
-    def put_target(self, grasp: str, position: np.ndarray, orientation: np.ndarray) -> None:
+    def put_target(self, grasp: str, position: np.ndarray, orientation: np.ndarray,
+                   kind: str = "target") -> None:
+        """Queue the newest pose of grasp ``grasp`` (``kind`` ``"target"``) or of
+        an obstacle of that name (``"obstacle_target"``), replacing an older
+        one of the same kind and name."""
         with self._lock:
-            self._targets[grasp] = (next(self._order), ("target", grasp, position, orientation))
+            self._targets[(kind, grasp)] = (next(self._order),
+                                            (kind, grasp, position, orientation))
 
     def put_command(self, *command) -> bool:
         """Queue ``command`` (a tuple whose first item is its kind); False when full."""

@@ -4,9 +4,10 @@ Thin by design: declare parameters, build a :class:`~cloth_lod_ros.sim.ClothSim`
 wire topics and services.  Three kinds of thread share the work, and only the
 stepping thread touches the simulator:
 
-* the **pose thread** judges each grasp pose when it arrives (frame, finite,
+* the **pose thread** judges each grasp or obstacle pose when it arrives (frame, finite,
   orientation, stamp, workspace: :func:`~cloth_lod_ros.ros.inputs.judge_pose`),
-  records it, and leaves the newest target per grasp in the input queue;
+  records it, and leaves the newest target per grasp and per obstacle in the
+  input queue;
 * the **request thread** answers every service call at once - "queued: applies
   before step N" or a refusal with the reason (a full queue during a burst);
   parameter changes are validated as a whole scene without the simulator;
@@ -20,7 +21,9 @@ and ``/diagnostics``; a failed step stops the simulation (ERROR) until
 ``cloth/reset``.
 
 Topics (relative names, so a namespace or remap moves them all):
-  in:  ``grasp/<name>/pose`` (geometry_msgs/PoseStamped) for each grasp of the scene
+  in:  ``grasp/<name>/pose`` (geometry_msgs/PoseStamped) for each grasp of the scene,
+       ``obstacle/<name>/pose`` (geometry_msgs/PoseStamped) for each obstacle: the
+       pose its frame moves to (at its speed limits), judged like grasp poses
   out: ``cloth/markers`` (visualization_msgs/MarkerArray), ``cloth/lod_stats``
        (diagnostic_msgs/DiagnosticArray), ``cloth/points`` (sensor_msgs/PointCloud2,
        one point per particle), ``cloth/grid`` (organised PointCloud2 sampled on a
@@ -39,7 +42,6 @@ session: inputs as applied, outputs as published, and the scene and parameters
 from __future__ import annotations
 
 import collections
-import logging
 import sys
 import time
 
@@ -63,6 +65,7 @@ from ..sim import ClothSim, SimulationError
 from ..sim.config import SceneError, load_scene, scene_to_dict
 from . import parameters
 from .inputs import POSE_REJECTIONS, InputQueue, PoseLimits, health, judge_pose
+from .logs import forward_library_logs
 from .parameters import LIVE, LIVE_CHOICES
 from .recording import NodeRecording
 
@@ -93,7 +96,7 @@ class ClothLodNode(Node):
 
         self.frame_id = self.get_parameter("frame_id").value
         self.publish_clock = bool(self.get_parameter("publish_clock").value)
-        _forward_library_logs(self.get_logger())
+        forward_library_logs(self.get_logger())
         self.queue = InputQueue()
         self.rejected = dict.fromkeys(POSE_REJECTIONS, 0)
         self.rejected.update(invalid=0, requests=0, parameters=0)
@@ -106,7 +109,8 @@ class ClothLodNode(Node):
         self.recording = NodeRecording(self.get_namespace(),
                                        self.get_parameter("record_compression").value,
                                        [g.name for g in self.sim.grasps], self.get_logger(),
-                                       self.context.ok)
+                                       self.context.ok,
+                                       [o.name for o in self.sim.obstacle_motions])
         self._param_scene = self.sim.scene          # what live changes are validated against
         self._sim_time = 0.0                        # read by the input threads
 
@@ -128,6 +132,12 @@ class ClothLodNode(Node):
                                      POSE_QOS, callback_group=self._poses)
             self._service(SetBool, f"grasp/{g.name}/close",
                           lambda req, res, name=g.name: self._on_close(name, req, res))
+        # Every obstacle can be driven live (one that has not been is static).
+        for o in self.sim.obstacle_motions:
+            self.create_subscription(
+                PoseStamped, f"obstacle/{o.name}/pose",
+                lambda msg, name=o.name: self._on_pose(name, msg, "obstacle"),
+                POSE_QOS, callback_group=self._poses)
         self._service(Trigger, "cloth/reset", self._on_reset)
         self._service(Trigger, "cloth/step", self._on_step)
         self._service(SetBool, "cloth/pause", self._on_pause)
@@ -235,11 +245,12 @@ class ClothLodNode(Node):
                 "try again")
 
     # -- inputs (input threads; never wait for a step) --------------------------
-    def _on_pose(self, name: str, msg: PoseStamped) -> None:
+    def _on_pose(self, name: str, msg: PoseStamped, kind: str = "grasp") -> None:
+        """A pose on ``<kind>/<name>/pose`` (kind ``grasp`` or ``obstacle``)."""
         self.poses_received += 1
         try:
             if self.recording.recorder is not None:
-                self.recording.message(f"grasp/{name}/pose", serialize_message(msg))
+                self.recording.message(f"{kind}/{name}/pose", serialize_message(msg))
             p, q = msg.pose.position, msg.pose.orientation
             reason, position, orientation = judge_pose(
                 msg.header.frame_id, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w],
@@ -247,14 +258,15 @@ class ClothLodNode(Node):
         except Exception as exc:
             self.internal_errors += 1
             reason = "invalid"
-            self.get_logger().error(f"grasp/{name}/pose: {exc!r}", throttle_duration_sec=5.0)
+            self.get_logger().error(f"{kind}/{name}/pose: {exc!r}", throttle_duration_sec=5.0)
         if reason is not None:
             self.rejected[reason] += 1
             self.get_logger().warning(
-                f"grasp/{name}/pose rejected ({reason}); {self._rejected_poses()} "
+                f"{kind}/{name}/pose rejected ({reason}); {self._rejected_poses()} "
                 "rejected so far", throttle_duration_sec=2.0)
             return
-        self.queue.put_target(name, position, orientation)
+        self.queue.put_target(name, position, orientation,
+                              "target" if kind == "grasp" else "obstacle_target")
 
     def _rejected_poses(self) -> int:
         return sum(self.rejected[k] for k in POSE_REJECTIONS) + self.rejected["invalid"]
@@ -347,6 +359,12 @@ class ClothLodNode(Node):
                     _, name, position, orientation = command
                     self.sim.set_grasp_target(name, position, orientation)
                     self._record_input("grasp_target", grasp=name, position=position.tolist(),
+                                       orientation=orientation.tolist())
+                elif kind == "obstacle_target":
+                    _, name, position, orientation = command
+                    self.sim.set_obstacle_target(name, position, orientation)
+                    self._record_input("obstacle_target", obstacle=name,
+                                       position=position.tolist(),
                                        orientation=orientation.tolist())
                 elif kind == "close":
                     _, name, close = command
@@ -530,26 +548,6 @@ def _time_msg(seconds: float):
     ns = int(round(seconds * 1e9))
     msg.sec, msg.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
     return msg
-
-
-class _RosLogHandler(logging.Handler):
-    """Send the simulator's Python log records (e.g. a grasp catching up with a
-    jumped target) to the node's ROS logger."""
-
-    def __init__(self, ros_logger):
-        super().__init__(level=logging.INFO)
-        self.ros_logger = ros_logger
-
-    def emit(self, record):
-        level = {logging.WARNING: "warning", logging.ERROR: "error"}.get(record.levelno, "info")
-        getattr(self.ros_logger, level)(record.getMessage())
-
-
-def _forward_library_logs(ros_logger) -> None:
-    library = logging.getLogger("cloth_lod_ros")
-    library.handlers = [h for h in library.handlers if not isinstance(h, _RosLogHandler)]
-    library.addHandler(_RosLogHandler(ros_logger))
-    library.propagate = False
 
 
 def main(args=None) -> None:

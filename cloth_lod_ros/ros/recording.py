@@ -22,13 +22,16 @@ class NodeRecording:
     """Args:
         namespace: the node's namespace (prefix of the recorded topics).
         compression: MCAP chunk compression.
-        grasp_names: the scene's grasps (their pose topics are recorded).
+        grasp_names, obstacle_names: the scene's grasps and obstacles (their
+            pose topics are recorded).
         logger: the node's ROS logger; ``context_ok``: whether ROS logging works.
     """
 
-    def __init__(self, namespace: str, compression: str, grasp_names, logger, context_ok):
+    def __init__(self, namespace: str, compression: str, grasp_names, logger, context_ok,
+                 obstacle_names=()):
         self.namespace, self.compression = namespace, compression
         self.grasp_names = list(grasp_names)
+        self.obstacle_names = list(obstacle_names)
         self.logger, self.context_ok = logger, context_ok
         self.recorder: SessionRecorder | None = None
         self.error: str | None = None
@@ -40,7 +43,8 @@ class NodeRecording:
             path = time.strftime("bags/cloth_lod_%Y%m%d_%H%M%S")
         try:
             recorder = SessionRecorder(path, self.namespace, self.compression,
-                                       grasp_names=self.grasp_names)
+                                       grasp_names=self.grasp_names,
+                                       obstacle_names=self.obstacle_names)
         except BagError as exc:
             self.error = str(exc)
             self.logger.error(f"recording not started: {exc}")

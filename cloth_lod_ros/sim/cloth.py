@@ -31,12 +31,13 @@ import time as _time
 import numpy as np
 
 from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
-from .contact import make_obstacle, nearest_surface
+from .contact import nearest_surface
 from .forces import Elements, air_power, elastic_energies, precompute
 from .grasps import Grasp
 from .held import HeldInputs
 from .hierarchy import Hierarchy48
 from .integrator import ImplicitStageSolver
+from .kinematics import ObstacleInputs
 from .lod import LodPolicy
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
@@ -80,7 +81,7 @@ def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
     return scene_from_dict(data)
 
 
-class ClothSim(HeldInputs):
+class ClothSim(HeldInputs, ObstacleInputs):
     """A cloth scene ready to step.
 
     Build from a :class:`~cloth_lod_ros.sim.config.SceneConfig` or with
@@ -144,9 +145,10 @@ class ClothSim(HeldInputs):
             positions = origin + self.mesh.uv @ axes
             self.state = ClothState(positions, np.zeros_like(positions), 0.0)
         self.pins = [self._make_pin(p) for p in scene.pins]
-        # Inputs beyond pins: obstacles (contact) and grasps.  A scene without
-        # obstacles never evaluates contact code.
-        self.obstacles = [make_obstacle(o) for o in scene.obstacles]
+        # Inputs beyond pins: obstacles (contact; static, scripted or driven
+        # live) and grasps.  A scene without obstacles never evaluates contact code.
+        self._make_obstacles()
+        self.solver.friction_rounds = scene.contact.friction_rounds
         self.stepper = TimeStepper(self.solver, scene.simulation, self.obstacles,
                                    scene.contact)
         self.grasps = [Grasp.from_config(g) for g in scene.grasps]
@@ -261,8 +263,12 @@ class ClothSim(HeldInputs):
             if g.closed:
                 g.advance(next_time, h)
         held = self._held(next_time)
+        # Kinematic obstacles: their motion over this step is known now; they
+        # take their end poses only if the step succeeds.
+        sweep = self._obstacle_sweep(next_time, h)
         new_state, report, contacts, steps = self.stepper.advance(
-            self.elements, self.masses, self.state, held, h)
+            self.elements, self.masses, self.state, held, h,
+            None if sweep is None else sweep.at)
         new_state.time = next_time          # not the sum of the substeps' roundings
         # The new topology's sparsity pattern is built by its first solve; it
         # is LOD bookkeeping, not solving.
@@ -282,6 +288,7 @@ class ClothSim(HeldInputs):
                             "after %d iterations (%d such steps so far)", new_state.time,
                             report.residual, report.iterations, self._unconverged_steps)
         self.state = new_state
+        self._commit_obstacles(sweep)
         x, v = new_state.positions, new_state.velocities
         elastic = elastic_energies(self.elements, self.scene.material, x)
         per_level = np.bincount(self.mesh.levels, minlength=self.max_level + 1)

@@ -16,20 +16,20 @@ most :data:`MAX_TRIANGLES` triangles.  Error messages quote values shortened.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import os
 import re
 import sys
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from .scene_yaml import MAX_NESTING, MAX_SCENE_BYTES, SceneError
 from .scene_yaml import HugeInteger as _HugeInteger
 from .scene_yaml import load_yaml as _load_yaml
 from .scene_yaml import shorten as _show
+from .scene_files import (apply_overrides, builtin_scene_names, find_scene_file,  # noqa: F401
+                          parse_override, scenes_directory)
 
 __all__ = [
     "SceneError", "ClothConfig", "MaterialConfig", "AirConfig", "PinConfig", "LodConfig",
@@ -146,6 +146,16 @@ class ObstacleConfig:
     rounding: float = _spec("float", "m", ge=0, default=0.0,
                             doc="box: radius of its rounded edges")
     friction: float = _spec("float", "", ge=0, default=0.3, doc="Coulomb coefficient")
+    waypoints: tuple = _spec("poses", "s, m", default=(),
+                             doc="scripted pose path, [[t, x, y, z], ...] or [[t, x, y, z, "
+                                 "qx, qy, qz, qw], ...]: the centre (a plane's point) and the "
+                                 "orientation of the obstacle's frame (z = a plane's normal, "
+                                 "a cylinder's axis); linear/slerp between points, held "
+                                 "outside them; none: static unless driven live")
+    max_speed: float = _spec("float", "m/s", gt=0, default=2.0,
+                             doc="fastest the obstacle follows its target (script or live)")
+    max_angular_speed: float = _spec("float", "rad/s", gt=0, default=6.0,
+                                     doc="fastest the obstacle turns towards its target")
 
 
 @dataclass(frozen=True)
@@ -154,6 +164,11 @@ class ContactConfig:
                              doc="particles keep this distance from obstacle surfaces")
     max_correction_speed: float = _spec("float", "m/s", gt=0, default=0.5,
                                         doc="fastest push out of a penetration")
+    friction_rounds: int = _spec("int", "", ge=1, le=100, default=6,
+                                 doc="most solves per contact solve while contacts start "
+                                     "to slip (a slip front advances about one row of "
+                                     "particles per solve; a sticking cloth pushed from "
+                                     "one side needs about as many as it has rows)")
 
 
 @dataclass(frozen=True)
@@ -308,6 +323,14 @@ def _vector(value: Any, path: str, length: int) -> tuple:
     return tuple(_number(v, f"{path}[{i}]") for i, v in enumerate(value))
 
 
+def _unit_quaternion(vec: tuple, path: str) -> tuple:
+    """A quaternion ``(x, y, z, w)`` normalised (left alone when already unit)."""
+    norm = math.sqrt(sum(c * c for c in vec))
+    if norm == 0.0 or not math.isfinite(norm):
+        raise SceneError(f"field '{path}' must be a non-zero quaternion [x, y, z, w]")
+    return tuple(c / norm for c in vec) if abs(norm - 1.0) > 1e-12 else vec
+
+
 def _check_bounds(value, meta: dict, path: str) -> None:
     unit = f" {meta['unit']}" if meta["unit"] else ""
     items = value if isinstance(value, tuple) else (value,)
@@ -362,11 +385,7 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
             raise SceneError(f"field '{path}' must be one of {list(meta['choices'])}, "
                              f"got {_show(value)}")
     elif kind == "quat":
-        vec = _vector(value, path, 4)
-        norm = math.sqrt(sum(c * c for c in vec))
-        if norm == 0.0:
-            raise SceneError(f"field '{path}' must be a non-zero quaternion [x, y, z, w]")
-        out = tuple(c / norm for c in vec) if abs(norm - 1.0) > 1e-12 else vec
+        out = _unit_quaternion(_vector(value, path, 4), path)
     elif kind in ("obstacles", "grasps"):
         if not isinstance(value, (list, tuple)):
             raise SceneError(f"field '{path}' must be a list")
@@ -382,6 +401,22 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
         if not isinstance(value, (list, tuple)):
             raise SceneError(f"field '{path}' must be a list of [t, x, y, z]")
         out = tuple(_vector(p, f"{path}[{i}]", 4) for i, p in enumerate(value))
+        times = [p[0] for p in out]
+        if any(b <= a for a, b in zip(times, times[1:])):
+            raise SceneError(f"field '{path}' times must increase strictly")
+    elif kind == "poses":
+        if not isinstance(value, (list, tuple)):
+            raise SceneError(f"field '{path}' must be a list of [t, x, y, z] or "
+                             "[t, x, y, z, qx, qy, qz, qw]")
+        width = len(value[0]) if value and isinstance(value[0], (list, tuple)) else 4
+        for i, p in enumerate(value):
+            if not isinstance(p, (list, tuple)) or len(p) not in (4, 8) or len(p) != width:
+                raise SceneError(f"field '{path}[{i}]' must be [t, x, y, z] or [t, x, y, z, "
+                                 f"qx, qy, qz, qw] like the first row, got {_show(p)}")
+        out = tuple(_vector(p, f"{path}[{i}]", width) for i, p in enumerate(value))
+        if width == 8:
+            out = tuple(p[:4] + _unit_quaternion(p[4:], f"{path}[{i}]")
+                        for i, p in enumerate(out))
         times = [p[0] for p in out]
         if any(b <= a for a, b in zip(times, times[1:])):
             raise SceneError(f"field '{path}' times must increase strictly")
@@ -454,6 +489,10 @@ def scene_from_dict(data: Any) -> SceneConfig:
         if obstacle.type == "box" and obstacle.rounding >= min(obstacle.half_extents):
             raise SceneError(f"field 'obstacles[{i}].rounding' must be below the smallest "
                              "half extent")
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", obstacle.name):
+            raise SceneError(f"field 'obstacles[{i}].name' = {_show(obstacle.name)} must be "
+                             "letters, digits and underscores, not starting with a digit "
+                             "(it names ROS topics)")
     for i, grasp in enumerate(scene.grasps):
         u, v = grasp.uv
         if not (0.0 <= u <= cloth.width and 0.0 <= v <= cloth.height):
@@ -489,91 +528,6 @@ def scene_to_dict(scene: SceneConfig) -> dict:
             return [plain(v) for v in value]
         return value
     return plain(scene)
-
-
-def apply_overrides(data: dict, overrides: list[str] | dict) -> dict:
-    """Return a copy of a raw scene mapping with ``key=value`` overrides set.
-
-    Keys are dotted paths (``material.density``, ``cloth.base_blocks``); values
-    are parsed as YAML (``0.3``, ``[8, 8]``, ``false``).  The result still goes
-    through :func:`scene_from_dict`, so a bad value is refused there.
-    """
-    out = copy.deepcopy(data)
-    items = overrides.items() if isinstance(overrides, dict) else (
-        parse_override(o) for o in overrides)
-    for key, value in items:
-        parts = key.split(".")
-        node = out
-        for i, part in enumerate(parts[:-1]):
-            child = node.get(part) if isinstance(node, dict) else None
-            if child is None:
-                child = node[part] = {}
-            if not isinstance(child, dict):
-                raise SceneError(f"cannot set '{key}': '{'.'.join(parts[:i + 1])}' "
-                                 "is not a section")
-            node = child
-        node[parts[-1]] = value
-    return out
-
-
-def parse_override(text: str):
-    """``"key=value"`` -> ``(key, value)``, the value parsed as YAML (bounded as scene files are)."""
-    if "=" not in text:
-        raise SceneError(f"override {_show(text)} must look like key=value")
-    key, raw = text.split("=", 1)
-    key = key.strip()
-    if not key:
-        raise SceneError(f"override {_show(text)} has an empty key")
-    return key, _load_yaml(raw, f"override {_show(text)}")
-
-
-def scenes_directory() -> Path:
-    """Directory of the built-in scenes (installed share/ or the source tree)."""
-    # A source checkout first (repository root = three levels above this file):
-    # the scenes that belong to the code being run, not an older installed copy.
-    candidates = [Path(__file__).resolve().parents[2] / "config" / "scenes"]
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        if prefix:
-            candidates.append(Path(prefix) / "share" / "cloth_lod_ros" / "config" / "scenes")
-    candidates.append(Path(sys.prefix) / "share" / "cloth_lod_ros" / "config" / "scenes")
-    for path in candidates:
-        if path.is_dir():
-            return path
-    raise SceneError("built-in scene directory not found (is the package installed?)")
-
-
-def builtin_scene_names() -> list[str]:
-    return sorted(p.stem for p in scenes_directory().glob("*.yaml"))
-
-
-def _not_a_scene_file(path: Path) -> SceneError:
-    if path.is_dir():
-        return SceneError(f"scene path {_show(str(path))} is a directory, not a scene file")
-    if path.exists():
-        return SceneError(f"scene path {_show(str(path))} is not a regular file")
-    return SceneError(f"scene file {_show(str(path))} does not exist")
-
-
-def find_scene_file(scene: str | os.PathLike) -> Path:
-    """Resolve a built-in scene name or a YAML file path.
-
-    A path to an existing file wins; ``name`` (no ``.yaml``/``.yml``, no
-    directory part) is otherwise a built-in scene, even if a directory of that
-    name exists here.
-    """
-    path = Path(scene)
-    if path.is_file():
-        return path
-    text = str(scene)
-    if path.suffix in (".yaml", ".yml") or os.sep in text or (os.altsep and os.altsep in text):
-        raise _not_a_scene_file(path)
-    candidate = scenes_directory() / f"{scene}.yaml"
-    if candidate.is_file():
-        return candidate
-    if path.exists():
-        raise _not_a_scene_file(path)
-    raise SceneError(f"unknown scene {_show(text)}; built-in scenes: "
-                     f"{', '.join(builtin_scene_names())}")
 
 
 def load_scene(scene: str | os.PathLike,

@@ -14,17 +14,28 @@ normal impulse λ, a contact sticks (fully constrained) while its tangential
 momentum is within μλ and slips with the impulse −μλ t̂ otherwise, so the rest
 of the cloth responds to the friction in the same step.
 
+An obstacle may move (design §3, "Moving obstacles"): it then carries the
+rigid velocity of its motion over the current step, ``velocity`` (m/s, of its
+reference point :attr:`Obstacle.origin`) and ``angular_velocity`` (rad/s), and
+every contact carries the velocity of the surface point it touches
+(:attr:`ContactSet.velocity`).  The constraint and friction are relative to
+that velocity.  A static obstacle has ``velocity None`` and its contacts
+``velocity None``: the code then runs exactly as it did before obstacles could
+move.
+
 A scene without obstacles never calls into this module.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 __all__ = ["Obstacle", "Plane", "Sphere", "Cylinder", "Box", "make_obstacle",
-           "ContactSet", "nearest_surface", "find_contacts", "penetrations"]
+           "ContactSet", "nearest_surface", "find_contacts", "penetrations",
+           "quaternion_matrix", "quaternion_from_z"]
 
 
 def _normalise(v: np.ndarray) -> np.ndarray:
@@ -41,16 +52,72 @@ def quaternion_matrix(q) -> np.ndarray:
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
+def quaternion_from_z(axis) -> np.ndarray:
+    """Unit quaternion ``[x, y, z, w]`` of the shortest turn taking +z onto ``axis`` (3,)."""
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    w = 1.0 + a[2]
+    if w < 1e-12:                                   # axis = -z: half turn about x
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    q = np.array([-a[1], a[0], 0.0, w])
+    return q / np.linalg.norm(q)
+
+
 @dataclass
 class Obstacle:
-    """Base: name and Coulomb friction coefficient (dimensionless)."""
+    """Base: name and Coulomb friction coefficient (dimensionless).
+
+    A moving obstacle also has ``velocity`` ``(3,)`` m/s (of :attr:`origin`)
+    and ``angular_velocity`` ``(3,)`` rad/s over the current step; both None
+    for a static one.  Its *pose* is ``(origin (3,) m, quaternion [x, y, z, w])``:
+    the frame whose z axis is a plane's normal or a cylinder's axis, a box's
+    own frame, a sphere's (identity) - the pose of its marker.
+    """
 
     name: str
     friction: float
+    velocity: np.ndarray | None = field(default=None, kw_only=True)
+    angular_velocity: np.ndarray | None = field(default=None, kw_only=True)
 
     def distance(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(φ (m,), normal (m, 3))`` for points ``x`` ``(m, 3)`` in m."""
         raise NotImplementedError
+
+    @property
+    def moving(self) -> bool:
+        return self.velocity is not None
+
+    @property
+    def origin(self) -> np.ndarray:
+        """``(3,)`` m: the reference point of the pose (centre, or a plane's point)."""
+        return self.centre
+
+    def orientation_quaternion(self) -> np.ndarray:
+        """``(4,)`` unit quaternion [x, y, z, w] of the pose."""
+        return np.array([0.0, 0.0, 0.0, 1.0])
+
+    def _posed(self, position: np.ndarray, rotation: np.ndarray | None) -> dict:
+        """Fields of this shape at ``position`` (3,) m, turned by ``rotation``
+        (3, 3) relative to its present orientation (None: not turned, so its
+        directions stay exactly as they are)."""
+        return {"centre": position}
+
+    def moved(self, position, rotation: np.ndarray | None, velocity=None,
+              angular_velocity=None) -> "Obstacle":
+        """A copy with its origin at ``position`` ``(3,)`` m, turned by
+        ``rotation`` ``(3, 3)`` relative to this one (None: not turned), with
+        the given velocities (``(3,)`` m/s and rad/s; None: static)."""
+        fields = self._posed(np.asarray(position, dtype=float), rotation)
+        return replace(self, **fields, velocity=velocity, angular_velocity=angular_velocity)
+
+    def surface_velocity(self, points: np.ndarray) -> np.ndarray:
+        """``(m, 3)`` m/s: velocity of the obstacle's material at ``points`` ``(m, 3)``
+        (m), ``v + ω × (p − origin)``; zeros for a static obstacle."""
+        if self.velocity is None:
+            return np.zeros_like(points)
+        u = np.broadcast_to(self.velocity, points.shape).copy()
+        if self.angular_velocity is not None and np.any(self.angular_velocity):
+            u += np.cross(self.angular_velocity, points - self.origin)
+        return u
 
 
 @dataclass
@@ -63,6 +130,18 @@ class Plane(Obstacle):
     def distance(self, x):
         n = self.normal / np.linalg.norm(self.normal)
         return (x - self.point) @ n, np.broadcast_to(n, x.shape)
+
+    @property
+    def origin(self):
+        return self.point
+
+    def orientation_quaternion(self):
+        return quaternion_from_z(self.normal)
+
+    def _posed(self, position, rotation):
+        if rotation is None:
+            return {"point": position}
+        return {"point": position, "normal": rotation @ self.normal}
 
 
 @dataclass
@@ -110,6 +189,14 @@ class Cylinder(Obstacle):
         grad_in = np.where((q_r > q_a)[:, None], radial_dir, axial_dir)
         return phi, np.where((outside > 0)[:, None], grad_out, grad_in)
 
+    def orientation_quaternion(self):
+        return quaternion_from_z(self.axis)
+
+    def _posed(self, position, rotation):
+        if rotation is None:
+            return {"centre": position}
+        return {"centre": position, "axis": rotation @ self.axis}
+
 
 @dataclass
 class Box(Obstacle):
@@ -136,6 +223,21 @@ class Box(Obstacle):
         grad_in[np.arange(len(x)), k] = sign[np.arange(len(x)), k]
         local_normal = np.where((outside > 0)[:, None], grad_out, grad_in)
         return phi, local_normal @ rot.T
+
+    def orientation_quaternion(self):
+        return np.asarray(self.orientation, float) / np.linalg.norm(self.orientation)
+
+    def _posed(self, position, rotation):
+        if rotation is None:
+            return {"centre": position}
+        turned = rotation @ quaternion_matrix(self.orientation)
+        return {"centre": position, "orientation": _matrix_quaternion(turned)}
+
+
+def _matrix_quaternion(m: np.ndarray) -> np.ndarray:
+    """Unit quaternion [x, y, z, w] of a rotation matrix (3, 3) (w ≥ 0)."""
+    q = Rotation.from_matrix(m).as_quat()
+    return -q if q[3] < 0 else q
 
 
 def _any_perpendicular(a: np.ndarray) -> np.ndarray:
@@ -167,9 +269,16 @@ class ContactSet:
     Attributes:
         indices: ``(k,)`` particle indices; ``normals``: ``(k, 3)`` outward;
         distance: ``(k,)`` φ − thickness (m, negative = inside the offset
-        surface); ``friction``: ``(k,)`` μ of the touched obstacle;
+        surface) at the start of the step; ``friction``: ``(k,)`` μ of the
+        touched obstacle;
         ``hold``: ``(k,)`` contacts that may not be released (the particle was
-        found inside the obstacle, so letting go is not an option).
+        found inside the obstacle, so letting go is not an option);
+        ``velocity``: ``(k, 3)`` m/s, the velocity of the obstacle's surface
+        point the particle touches (None: every one is 0, static obstacles).
+        The normal target and the stick condition are relative to it: a
+        contact lands on the offset surface where the surface is at the end
+        of the stage, a sticking one moves with the surface, a slipping one
+        feels friction against its velocity *relative* to the surface.
     """
 
     indices: np.ndarray
@@ -177,6 +286,7 @@ class ContactSet:
     distance: np.ndarray
     friction: np.ndarray
     hold: np.ndarray | None = None
+    velocity: np.ndarray | None = None
 
     def __post_init__(self):
         if self.hold is None:
@@ -185,33 +295,68 @@ class ContactSet:
     def __len__(self) -> int:
         return len(self.indices)
 
+    def normal_speed(self) -> np.ndarray | None:
+        """``(k,)`` m/s: the surface's velocity along each normal (None: static)."""
+        if self.velocity is None:
+            return None
+        return np.einsum("kd,kd->k", self.velocity, self.normals)
+
     def subset(self, keep: np.ndarray) -> "ContactSet":
         return ContactSet(self.indices[keep], self.normals[keep], self.distance[keep],
-                          self.friction[keep], self.hold[keep])
+                          self.friction[keep], self.hold[keep],
+                          None if self.velocity is None else self.velocity[keep])
 
     def union(self, other: "ContactSet") -> "ContactSet":
         """Contacts of both; where a particle is in both, ``other`` wins."""
         keep = ~np.isin(self.indices, other.indices)
+        velocity = None
+        if self.velocity is not None or other.velocity is not None:
+            mine = np.zeros((len(self), 3)) if self.velocity is None else self.velocity
+            theirs = np.zeros((len(other), 3)) if other.velocity is None else other.velocity
+            velocity = np.concatenate([mine[keep], theirs])
         return ContactSet(np.concatenate([self.indices[keep], other.indices]),
                           np.concatenate([self.normals[keep], other.normals]),
                           np.concatenate([self.distance[keep], other.distance]),
                           np.concatenate([self.friction[keep], other.friction]),
-                          np.concatenate([self.hold[keep], other.hold]))
+                          np.concatenate([self.hold[keep], other.hold]), velocity)
 
 
-def nearest_surface(obstacles: list[Obstacle], x: np.ndarray):
-    """For points ``(m, 3)``: signed distance (m), outward normal and friction
-    coefficient of the nearest obstacle (the one with the smallest φ)."""
+def _nearest(obstacles: list[Obstacle], x: np.ndarray):
+    """``(φ (m,), normal (m, 3), μ (m,), index of the nearest obstacle (m,))``."""
     best = np.full(len(x), np.inf)
     normal = np.zeros((len(x), 3))
     mu = np.zeros(len(x))
-    for obstacle in obstacles:
+    which = np.full(len(x), -1)
+    for k, obstacle in enumerate(obstacles):
         phi, nrm = obstacle.distance(x)
         closer = phi < best
         best[closer] = phi[closer]
         normal[closer] = nrm[closer]
         mu[closer] = obstacle.friction
-    return best, normal, mu
+        which[closer] = k
+    return best, normal, mu, which
+
+
+def nearest_surface(obstacles: list[Obstacle], x: np.ndarray):
+    """For points ``(m, 3)``: signed distance (m), outward normal and friction
+    coefficient of the nearest obstacle (the one with the smallest φ)."""
+    return _nearest(obstacles, x)[:3]
+
+
+def _surface_velocity(obstacles: list[Obstacle], which: np.ndarray, x: np.ndarray,
+                      phi: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
+    """``(k, 3)`` m/s: velocity of obstacle ``which`` ``(k,)`` at the surface
+    points ``x − φ n`` nearest points ``x`` ``(k, 3)`` (m); None when no
+    obstacle moves."""
+    if not any(o.moving for o in obstacles):
+        return None
+    surface = x - phi[:, None] * normal
+    velocity = np.zeros_like(surface)
+    for k, obstacle in enumerate(obstacles):
+        if obstacle.moving:
+            rows = which == k
+            velocity[rows] = obstacle.surface_velocity(surface[rows])
+    return velocity
 
 
 def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
@@ -220,48 +365,63 @@ def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
     """Particles that touch, or would reach this step, an obstacle's offset surface.
 
     *Speculative* contacts: a particle is a candidate when
-    ``φ + h·min(v·n, 0) < 2·thickness``, so that one moving fast is caught
+    ``φ + h·min((v − u)·n, 0) < 2·thickness`` (``u`` the velocity of the
+    surface point, 0 for a static obstacle), so that one moving fast
+    towards the surface, or one a surface moves fast towards, is caught
     before it tunnels into a thin obstacle, and one resting on a surface stays
     constrained instead of falling a step (g h²) in and out of the band.  The
     solve then prescribes the normal velocity that lands it exactly on the
     offset surface (or releases it if that would pull).
 
     Args:
+        obstacles: at their poses at the start of the step.
         x: ``(n, 3)`` positions, m; velocities: ``(n, 3)`` m/s; h: step, s.
         thickness: distance kept from surfaces, m.
         exclude: particle indices never constrained by contact (held ones).
     """
-    best, normal, mu = nearest_surface(obstacles, x)
+    best, normal, mu, which = _nearest(obstacles, x)
+    surface_velocity = _surface_velocity(obstacles, which, x, best, normal)
     approach = 0.0
     if velocities is not None and h > 0:
-        approach = h * np.minimum(np.einsum("nd,nd->n", velocities, normal), 0.0)
+        relative = velocities if surface_velocity is None else velocities - surface_velocity
+        approach = h * np.minimum(np.einsum("nd,nd->n", relative, normal), 0.0)
+    elif surface_velocity is not None and h > 0:
+        approach = h * np.minimum(-np.einsum("nd,nd->n", surface_velocity, normal), 0.0)
     touching = best + approach < 2.0 * thickness
     if exclude is not None and len(exclude):
         touching[exclude] = False
     idx = np.flatnonzero(touching)
-    return ContactSet(idx, normal[idx], best[idx] - thickness, mu[idx])
+    return ContactSet(idx, normal[idx], best[idx] - thickness, mu[idx],
+                      velocity=None if surface_velocity is None else surface_velocity[idx])
 
 
 def penetrations(obstacles: list[Obstacle], start: np.ndarray, end: np.ndarray,
                  thickness: float, exclude: np.ndarray | None = None,
-                 tolerance: float = 0.25) -> ContactSet:
+                 tolerance: float = 0.25, h: float = 0.0) -> ContactSet:
     """Contacts for particles whose end-of-step position is inside the offset surface.
 
     A particle that ends more than ``tolerance × thickness`` inside gets a
     contact on the tangent plane at the surface point nearest its predicted
-    position; ``distance`` is measured from its *start* position to that plane,
-    so the re-solved step lands it on the offset surface.
+    position; ``distance`` is measured from its *start* position to that plane
+    as it was at the start of the step (a moving surface point was ``u h``
+    back), so the re-solved step lands it on the offset surface where it is
+    at the end.
 
     Args:
+        obstacles: at their poses at the *end* of the step.
         start, end: ``(n, 3)`` positions at the start of the step and as
             predicted by the solve, m.
+        h: the step, s (how far back a moving surface was).
     """
-    best, normal, mu = nearest_surface(obstacles, end)
+    best, normal, mu, which = _nearest(obstacles, end)
     inside = best < (1.0 - tolerance) * thickness
     if exclude is not None and len(exclude):
         inside[exclude] = False
     idx = np.flatnonzero(inside)
     surface = end[idx] - best[idx, None] * normal[idx]
+    velocity = _surface_velocity(obstacles, which[idx], end[idx], best[idx], normal[idx])
+    if velocity is not None:
+        surface = surface - h * velocity
     along = np.einsum("kd,kd->k", start[idx] - surface, normal[idx])
     return ContactSet(idx, normal[idx], along - thickness, mu[idx],
-                      np.ones(len(idx), dtype=bool))
+                      np.ones(len(idx), dtype=bool), velocity)

@@ -105,6 +105,10 @@ class ImplicitStageSolver:
     call :meth:`reset_topology` after it changes.
     """
 
+    #: Most solves of one contact solve (``contact.friction_rounds``): the first,
+    #: the release re-solve and the rounds in which new contacts start to slip.
+    friction_rounds = 6
+
     def __init__(self, solver_config, material, gravity, geometry=None, air=None):
         """Args:
             solver_config: the scene's ``solver`` section (method, tolerance, ...).
@@ -223,8 +227,9 @@ class ImplicitStageSolver:
             contacts: a :class:`~cloth_lod_ros.sim.contact.ContactSet` or None;
                 ``contact_distance`` ``(k,)``: the normal distance (m) from
                 ``x̂`` each contact's particle must cover towards the obstacle
-                in this stage to end on the offset surface (negative: away
-                from it, a push-out).  A contact prescribes that normal
+                in this stage to end on the offset surface where it is at the
+                stage's end (negative: away from it, a push-out or a surface
+                moving out).  A contact prescribes that normal
                 velocity; contacts whose force would pull are released;
                 Coulomb friction follows.
             max_iterations, tolerance: Newton budget and stopping test (the
@@ -329,15 +334,20 @@ class ImplicitStageSolver:
 
         1. Every contact is held: its normal velocity lands it on the offset
            surface (see ``distance``; a penetrating one is pushed out slowly) and,
-           where the obstacle has friction, its tangential velocity is 0.
+           where the obstacle has friction, its tangential velocity is that of
+           the surface point it touches (``contacts.velocity``; 0 on a static
+           obstacle): a sticking contact moves with the surface.
            The reaction ``R = A Δv − b`` (an impulse, N·s) is what holding
            costs; contacts whose normal reaction would pull are released and
            the system is solved again (once).
         2. Coulomb: a contact whose tangential reaction exceeds ``μ R·n``
            cannot stick; it slides on the surface with the friction impulse
-           ``μ (R·n) R̂_t`` (opposing the slip) in the right-hand side, and the
-           system is solved again; repeated (at most 6 rounds) while new
-           contacts start to slip, because when one row lets go the next row
+           ``μ (R·n) R̂_t`` in the right-hand side (``R_t`` is what would have
+           held it on the surface point, so this opposes the slip *relative*
+           to the surface), and the
+           system is solved again; repeated (at most ``friction_rounds``
+           solves in all, ``contact.friction_rounds``) while new contacts start
+           to slip, because when one row lets go the next row
            takes its load.  Friction is inside the implicit solve,
            so the rest of the cloth responds to it in the same step.
         """
@@ -345,7 +355,7 @@ class ImplicitStageSolver:
         iterations = 0
         slip = np.zeros(len(contacts), dtype=bool)
         friction_impulse = np.zeros((len(contacts), 3))
-        rounds = 6          # a slip front moves one row of contacts per round
+        rounds = self.friction_rounds     # a slip front moves one row of contacts per round
         for attempt in range(rounds):
             normals = contacts.normals
             target_vn = -distance / h
@@ -355,6 +365,10 @@ class ImplicitStageSolver:
             projectors[sliding] = np.eye(3) - normals[sliding, :, None] * normals[sliding, None, :]
             # Held contacts: full Δv to (target_vn n); sliding: normal part only.
             prescribed = target_vn[:, None] * normals - current
+            surface_vn = contacts.normal_speed()
+            if surface_vn is not None:
+                # Sticking moves with the surface: its tangential velocity too.
+                prescribed += contacts.velocity - surface_vn[:, None] * normals
             current_vn = np.einsum("kd,kd->k", current, normals)
             prescribed[sliding] = ((target_vn - current_vn)[sliding, None] * normals[sliding])
             step_rhs = rhs
@@ -386,7 +400,11 @@ class ImplicitStageSolver:
             magnitude = np.linalg.norm(tangential, axis=1)
             # Normal load for friction: the reaction less what pushing a particle
             # out of the offset surface costs (a position correction is not a load).
-            correction = masses[contacts.indices] * np.maximum(target_vn, 0.0)
+            # On a moving surface, the part of the normal velocity that is the
+            # surface's own motion is a load (a tray lifting the cloth), not a
+            # correction.
+            push_out = target_vn if surface_vn is None else target_vn - surface_vn
+            correction = masses[contacts.indices] * np.maximum(push_out, 0.0)
             limit = contacts.friction * np.maximum(normal_reaction - correction, 0.0)
             new_slip = (contacts.friction > 0.0) & (magnitude > limit) & ~slip
             if not new_slip.any():

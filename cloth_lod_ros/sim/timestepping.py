@@ -85,20 +85,25 @@ def _stage_distance(contacts, x_start: np.ndarray, x_hat: np.ndarray, elapsed: f
                     max_speed: float):
     """The normal distance (m, ``(k,)``) each contact's particle must cover in
     a stage so that it ends on the offset surface, from the stage's base
-    positions ``x_hat``: ``d̂ − e``, with ``d̂`` the distance measured at
-    ``x_start`` moved to ``x_hat`` along the normal (tangent plane) and ``e``
-    the allowed end distance: 0, or for a particle that started inside
-    (``d < 0``) as far in as pushing out at ``max_speed`` m/s for the
-    ``elapsed`` s from the step's start to the stage's end leaves it.  (The
-    base of a later stage may lie inside although the particle did not start
-    there: that is the scheme's extrapolation, not a penetration to push out
-    slowly.)"""
+    positions ``x_hat``: ``d̂ − w E − e``, with ``d̂`` the distance measured at
+    ``x_start`` moved to ``x_hat`` along the normal (tangent plane), ``w E``
+    how far the surface moves along its normal in the ``elapsed`` s ``E``
+    from the step's start to the stage's end (``w = u·n``, ``u`` the contact's
+    surface velocity; 0 on a static obstacle) and ``e`` the allowed end
+    distance: 0, or for a particle that started inside (``d < 0``) as far in
+    as pushing out at ``max_speed`` m/s (relative to the surface) for ``E``
+    leaves it.  (The base of a later stage may lie inside although the
+    particle did not start there: that is the scheme's extrapolation, not a
+    penetration to push out slowly.)"""
     if contacts is None or not len(contacts):
         return None
     d = contacts.distance
     shift = x_hat[contacts.indices] - x_start[contacts.indices]
     d_hat = d + np.einsum("kd,kd->k", shift, contacts.normals)
     allowed = np.where(d < 0.0, np.minimum(d + max_speed * elapsed, 0.0), 0.0)
+    surface_vn = contacts.normal_speed()
+    if surface_vn is not None:
+        d_hat = d_hat - surface_vn * elapsed
     return d_hat - allowed
 
 
@@ -255,10 +260,15 @@ class TimeStepper:
         self.tolerance = effective_tolerance(simulation)
 
     def advance(self, elements: Elements, masses: np.ndarray, state: ClothState,
-                held: tuple[np.ndarray, np.ndarray], frame: float):
+                held: tuple[np.ndarray, np.ndarray], frame: float, obstacles_at=None):
         """Advance ``state`` by ``frame`` s with the held particles ending on
         ``held``'s targets.  Returns ``(state, report, contacts, FrameSteps)``;
-        the report covers all the work, rejected attempts included."""
+        the report covers all the work, rejected attempts included.
+
+        ``obstacles_at``: callable(fraction of the frame, 0 to 1) -> the
+        obstacles at that time, moving ones with their velocities (None: the
+        static :attr:`obstacles`), so each step of the frame sees them where
+        they are at its start and end."""
         indices, end_targets = held
         start = state.positions[indices]
         adaptive = self.tolerance > 0.0
@@ -280,8 +290,11 @@ class TimeStepper:
             fraction = (done + h) / frame
             targets = start + fraction * (end_targets - start)
             previous = start + (done / frame) * (end_targets - start)
+            moving = None
+            if obstacles_at is not None:
+                moving = (obstacles_at(done / frame), obstacles_at(min(fraction, 1.0)))
             new, report, step_contacts, error = self._attempt(
-                elements, masses, current, previous, (indices, targets), h)
+                elements, masses, current, previous, (indices, targets), h, moving)
             total.add(report)
             sound = self._acceptable(elements, current, new)
             accurate = not adaptive or (sound and error <= self.tolerance)
@@ -320,18 +333,21 @@ class TimeStepper:
         return not len(growth) or float(growth.max()) <= self.max_strain_growth
 
     def _attempt(self, elements: Elements, masses: np.ndarray, state: ClothState,
-                 start_targets: np.ndarray, held: tuple[np.ndarray, np.ndarray], h: float):
+                 start_targets: np.ndarray, held: tuple[np.ndarray, np.ndarray], h: float,
+                 moving=None):
         """One scheme step of ``h`` s with contacts and re-solves for missed
         penetrations.  Returns ``(state, report, contacts, error)``: the
         contacts found for the step (near or touching a surface, the LOD keeps
         detail there; the solve may have released some), ``error``
         being the estimated local position error in m (mass-weighted RMS over
-        the particles, held and contact ones counting as zero)."""
+        the particles, held and contact ones counting as zero).  ``moving``:
+        ``(obstacles at the step's start, at its end)`` or None (static)."""
         contacts = None
         thickness = self.contact.thickness
         indices, targets = held
+        at_start, at_end = moving if moving is not None else (self.obstacles, self.obstacles)
         if self.obstacles:
-            contacts = find_contacts(self.obstacles, state.positions, thickness,
+            contacts = find_contacts(at_start, state.positions, thickness,
                                      exclude=indices, velocities=state.velocities, h=h)
         result = self.scheme.step(self.solver, elements, masses, state, start_targets,
                                   held, h, contacts)
@@ -340,8 +356,8 @@ class TimeStepper:
             # A particle that the start-of-step test missed (accelerated into an
             # obstacle, or released and pushed in) gets a contact and the step is
             # solved again.
-            missed = penetrations(self.obstacles, state.positions, result.positions,
-                                  thickness, exclude=indices)
+            missed = penetrations(at_end, state.positions, result.positions,
+                                  thickness, exclude=indices, h=h)
             if not len(missed):
                 break
             contacts = contacts.union(missed)
@@ -354,9 +370,14 @@ class TimeStepper:
         if held_contacts is not None and len(held_contacts):
             # Inelastic contact: the normal velocity that moved a particle onto
             # the offset surface (landing or push-out) is a position correction,
-            # not motion to keep; storing it would bounce it off next step.
+            # not motion to keep; storing it would bounce it off next step.  On
+            # a moving surface only the velocity relative to it goes: the
+            # particle keeps moving with the surface along the normal.
             n_c = held_contacts.normals
             vn = np.einsum("kd,kd->k", velocities[held_contacts.indices], n_c)
+            surface_vn = held_contacts.normal_speed()
+            if surface_vn is not None:
+                vn = vn - surface_vn
             velocities[held_contacts.indices] -= vn[:, None] * n_c
         # Held particles: exactly on target (the stage velocities agree to rounding).
         positions[indices] = targets

@@ -182,7 +182,7 @@ def _cmd_run(args) -> int:
                           sim.triangle_levels, sim.max_level,
                           title=f"{scene.name}: final mesh at t = {sim.time:.2f} s, "
                                 f"{sim.mesh.triangle_count} triangles",
-                          obstacles=scene.obstacles,
+                          obstacles=sim.obstacle_configs(),      # where they are now
                           grasps=np.array([g.position for g in closed]).reshape(-1, 3),
                           grasp_uv=np.array([g.uv for g in closed]).reshape(-1, 2))
             history_png = png.with_name(png.stem + "_lod.png")

@@ -167,6 +167,21 @@ def _twist_work(angle: float, speed: float):
     return work
 
 
+def _pusher_work(obstacle: str):
+    """Driver work bound (J) for a kinematic obstacle moving at most
+    ``max_speed`` v that pushes the cloth: the kinetic energy of all of it at
+    2 v (a free body bounces off a wall moving at v with at most 2 v; contact
+    is inelastic, but the cloth is elastic in its plane) plus the potential
+    energy of lifting all of it to the obstacle's top (it may ride up it)."""
+    def work(sim: ClothSim) -> float:
+        cfg = next(o for o in sim.scene.obstacles if o.name == obstacle)
+        mass = float(np.sum(sim.masses))
+        top = cfg.centre[2] + float(np.linalg.norm(cfg.half_extents))
+        lift = top - float(sim.positions[:, 2].min())
+        return mass * _gravity(sim) * max(lift, 0.0) + 0.5 * mass * (2.0 * cfg.max_speed) ** 2
+    return work
+
+
 _HANG = "hang_two_corners"
 
 # Two 10 cm grippers instead of the two pins of hang_two_corners (closed at
@@ -305,6 +320,17 @@ CASES: tuple[Case, ...] = (
         bounds=Bounds(max_strain=_STRAIN),
         events=(Event(0.5, "release", ("top_left",)),),
         anchors=((1.0, 1.0),),  # hanging from the other corner in the end
+    ),
+    Case(
+        name="push_with_box",
+        description="a scripted box sweeps and turns, pushing a cloth across a table",
+        scene="push_with_box",
+        overrides={},
+        # Quick: the box reaches the cloth at 0.55 s and pushes it for 1 s.
+        full=Variant(3.0, 5), quick=Variant(1.6, 4),
+        bounds=Bounds(max_strain=_STRAIN),
+        floor=0.0,              # the table
+        driver_work=_pusher_work("pusher"),
     ),
     Case(
         name="max_level_8",
