@@ -194,3 +194,27 @@ def test_backends_agree_over_a_run_within_the_tolerance(method):
         stats = sim.step()
         assert stats.converged and stats.solver == method
     assert np.abs(sim.positions - ref.positions).max() < 5e-4
+
+
+def test_auto_factorises_larger_graded_meshes_than_uniform_ones():
+    """``auto`` picks LDLᵀ up to AUTO_DIRECT_LIMIT particles on a uniform mesh
+    and up to AUTO_DIRECT_LIMIT_GRADED on a graded one (where the lattice
+    V-cycle is weaker), multigrid above; and says which ran."""
+    from cloth_lod_ros.sim.solvers import AUTO_DIRECT_LIMIT, AUTO_DIRECT_LIMIT_GRADED
+    if "direct" not in solvers.available_methods():
+        pytest.skip("qdldl not installed")
+    mesh = refine_uniform(base_mesh(1.0, 1.0, 4, 4), 5)         # 545 particles
+    el = precompute(mesh)
+    pattern = SparsePattern(mesh.vertex_count, [el.triangles, el.hinge_vertices])
+    assert mesh.vertex_count <= AUTO_DIRECT_LIMIT
+    bigger = refine_uniform(base_mesh(1.0, 1.0, 4, 4), 6)      # 1,089 particles
+    big_el = precompute(bigger)
+    big_pattern = SparsePattern(bigger.vertex_count, [big_el.triangles, big_el.hinge_vertices])
+    assert AUTO_DIRECT_LIMIT < bigger.vertex_count <= AUTO_DIRECT_LIMIT_GRADED
+    auto = make_solver("auto", 1e-6, 1000, geometry=(1.0, 1.0, 0.25))
+    auto.reset_topology(pattern, mesh.uv)
+    assert auto.name == "direct"
+    auto.reset_topology(big_pattern, bigger.uv)
+    assert auto.name == "multigrid"
+    auto.reset_topology(big_pattern, bigger.uv, graded=True)
+    assert auto.name == "direct"

@@ -167,7 +167,9 @@ class ClothSim(HeldInputs, ObstacleInputs):
                                 self.state.time)
         # The sparsity pattern is built by the first solve on this topology:
         # a LOD pass that refines in rounds adopts several meshes in a row.
-        self.solver.reset_topology(uv=self.mesh.uv)
+        levels = self.mesh.levels
+        self.solver.reset_topology(uv=self.mesh.uv,
+                                   graded=bool(len(levels) and levels.min() != levels.max()))
         self._locator = None
         # A holding patch (pin or grasp) holds the material inside it: particles
         # that splits made there are held too (else a patch on a coarse mesh

@@ -132,14 +132,17 @@ class ImplicitStageSolver:
         self._previous_dv = None
 
     def reset_topology(self, elements: Elements | None = None,
-                       uv: np.ndarray | None = None) -> None:
+                       uv: np.ndarray | None = None, graded: bool | None = None) -> None:
         """Forget per-topology caches; with ``elements`` (and the particles' rest
-        ``uv`` ``(n, 2)`` m), build the new pattern and set up the backend now."""
+        ``uv`` ``(n, 2)`` m), build the new pattern and set up the backend now.
+        ``graded``: whether the new mesh mixes levels (the backend's hint)."""
         self._pattern = None
         self._warm = {}
         self._evaluated = None
         if uv is not None:
             self._uv = uv
+        if graded is not None:
+            self._graded = bool(graded)
         if elements is not None:
             self._new_pattern(elements)
 
@@ -147,7 +150,8 @@ class ImplicitStageSolver:
         start = _time.perf_counter()
         self._pattern = SparsePattern(elements.vertex_count,
                                       [elements.triangles, elements.hinge_vertices])
-        self.backend.reset_topology(self._pattern, self._uv)
+        self.backend.reset_topology(self._pattern, self._uv,
+                                    graded=getattr(self, "_graded", False))
         self.pattern_ms += 1e3 * (_time.perf_counter() - start)
 
     def take_pattern_ms(self) -> float:
