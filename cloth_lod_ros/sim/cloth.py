@@ -40,6 +40,7 @@ from .integrator import ImplicitStageSolver
 from .lod import LodPolicy
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
+from .self_contact import SelfCollision
 from .state import ClothState, SimulationError, StepStats
 from .timestepping import TimeStepper
 
@@ -147,8 +148,11 @@ class ClothSim(HeldInputs):
         # Inputs beyond pins: obstacles (contact) and grasps.  A scene without
         # obstacles never evaluates contact code.
         self.obstacles = [make_obstacle(o) for o in scene.obstacles]
+        # Self-collision only when enabled: otherwise no code of it runs.
+        self.self_collision = (SelfCollision(scene.self_collision)
+                               if scene.self_collision.enabled else None)
         self.stepper = TimeStepper(self.solver, scene.simulation, self.obstacles,
-                                   scene.contact)
+                                   scene.contact, self.self_collision)
         self.grasps = [Grasp.from_config(g) for g in scene.grasps]
         self._scripted_closed = {g.name: False for g in self.grasps}
         self.contacts = None
@@ -239,6 +243,8 @@ class ClothSim(HeldInputs):
             self._run_grasp_script(next_time)
         refines = merges = 0
         lod_ms = 0.0
+        sc = self.self_collision
+        sc_ms = sc.counters.ms if sc is not None else 0.0
         if self.hierarchy is not None and self.step_count % self.scene.lod.check_interval == 0:
             lod_start = _time.perf_counter()
             # The criterion needs only the hinges' angles and gradients, computed
@@ -292,7 +298,9 @@ class ClothSim(HeldInputs):
             smallest_step=steps.smallest, newton_iterations=report.newton_iterations,
             solves=report.solves, solver=self.solver.backend.name,
             air_power=air_power(self.elements, self.scene.air, self.scene.material.air_drag,
-                                self.masses, x, v))
+                                self.masses, x, v),
+            self_collision_ms=sc.counters.ms - sc_ms if sc is not None else 0.0,
+            self_contact_count=sc.last_constraints if sc is not None else 0)
         self.stats.append(stats)
         self.step_count += 1
         if self.keep_stats is not None and len(self.stats) > 2 * self.keep_stats:

@@ -169,7 +169,10 @@ class ContactSet:
         distance: ``(k,)`` φ − thickness (m, negative = inside the offset
         surface); ``friction``: ``(k,)`` μ of the touched obstacle;
         ``hold``: ``(k,)`` contacts that may not be released (the particle was
-        found inside the obstacle, so letting go is not an option).
+        found inside the obstacle, so letting go is not an option);
+        ``velocity``: ``(k, 3)`` m/s, the velocity of the surface point the
+        particle touches (the normal target and sticking are relative to it),
+        ``None`` = zero (a resting obstacle).
     """
 
     indices: np.ndarray
@@ -177,6 +180,7 @@ class ContactSet:
     distance: np.ndarray
     friction: np.ndarray
     hold: np.ndarray | None = None
+    velocity: np.ndarray | None = None
 
     def __post_init__(self):
         if self.hold is None:
@@ -187,16 +191,25 @@ class ContactSet:
 
     def subset(self, keep: np.ndarray) -> "ContactSet":
         return ContactSet(self.indices[keep], self.normals[keep], self.distance[keep],
-                          self.friction[keep], self.hold[keep])
+                          self.friction[keep], self.hold[keep],
+                          None if self.velocity is None else self.velocity[keep])
+
+    def surface_velocity(self) -> np.ndarray:
+        """``(k, 3)`` m/s: :attr:`velocity`, zeros where it is ``None``."""
+        return np.zeros((len(self), 3)) if self.velocity is None else self.velocity
 
     def union(self, other: "ContactSet") -> "ContactSet":
         """Contacts of both; where a particle is in both, ``other`` wins."""
         keep = ~np.isin(self.indices, other.indices)
+        velocity = None
+        if self.velocity is not None or other.velocity is not None:
+            velocity = np.concatenate([self.surface_velocity()[keep],
+                                       other.surface_velocity()])
         return ContactSet(np.concatenate([self.indices[keep], other.indices]),
                           np.concatenate([self.normals[keep], other.normals]),
                           np.concatenate([self.distance[keep], other.distance]),
                           np.concatenate([self.friction[keep], other.friction]),
-                          np.concatenate([self.hold[keep], other.hold]))
+                          np.concatenate([self.hold[keep], other.hold]), velocity)
 
 
 def nearest_surface(obstacles: list[Obstacle], x: np.ndarray):

@@ -344,8 +344,14 @@ class ImplicitStageSolver:
             sliding = (contacts.friction <= 0.0) | slip
             projectors = np.zeros((len(contacts), 3, 3))
             projectors[sliding] = np.eye(3) - normals[sliding, :, None] * normals[sliding, None, :]
-            # Held contacts: full Δv to (target_vn n); sliding: normal part only.
+            # Held contacts: full Δv to (target_vn n) plus the surface's
+            # tangential velocity (a moving surface carries a sticking particle);
+            # sliding: normal part only.
             prescribed = target_vn[:, None] * normals - current
+            if contacts.velocity is not None:
+                surface = contacts.velocity
+                surface_n = np.einsum("kd,kd->k", surface, normals)
+                prescribed = prescribed + surface - surface_n[:, None] * normals
             current_vn = np.einsum("kd,kd->k", current, normals)
             prescribed[sliding] = ((target_vn - current_vn)[sliding, None] * normals[sliding])
             step_rhs = rhs
@@ -377,7 +383,9 @@ class ImplicitStageSolver:
             magnitude = np.linalg.norm(tangential, axis=1)
             # Normal load for friction: the reaction less what pushing a particle
             # out of the offset surface costs (a position correction is not a load).
-            correction = masses[contacts.indices] * np.maximum(target_vn, 0.0)
+            # (Relative to the surface: keeping up with a moving one is a load.)
+            relative_vn = target_vn if contacts.velocity is None else target_vn - surface_n
+            correction = masses[contacts.indices] * np.maximum(relative_vn, 0.0)
             limit = contacts.friction * np.maximum(normal_reaction - correction, 0.0)
             new_slip = (contacts.friction > 0.0) & (magnitude > limit) & ~slip
             if not new_slip.any():
