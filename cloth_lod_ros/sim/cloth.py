@@ -151,6 +151,8 @@ class ClothSim(HeldInputs):
         # Self-collision only when enabled: otherwise no code of it runs.
         self.self_collision = (SelfCollision(scene.self_collision)
                                if scene.self_collision.enabled else None)
+        if self.self_collision is not None:
+            self.self_collision.set_topology(self.elements.triangles, self.mesh.uv)
         self.stepper = TimeStepper(self.solver, scene.simulation, self.obstacles,
                                    scene.contact, self.self_collision)
         self.grasps = [Grasp.from_config(g) for g in scene.grasps]
@@ -168,6 +170,8 @@ class ClothSim(HeldInputs):
         self.state = ClothState(h.x[self.vertex_ids].copy(), h.v[self.vertex_ids].copy(),
                                 self.state.time)
         self.solver.reset_topology(self.elements, self.mesh.uv)
+        if getattr(self, "self_collision", None) is not None:
+            self.self_collision.set_topology(self.elements.triangles, self.mesh.uv)
         self._locator = None
         # A holding patch (pin or grasp) holds the material inside it: particles
         # that splits made there are held too (else a patch on a coarse mesh

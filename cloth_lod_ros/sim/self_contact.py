@@ -53,8 +53,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .contact import ContactSet
-from .self_geometry import (box_pairs, edges_of, ee_crossing, point_triangle,
-                            segment_segment, vf_crossing)
+from .self_geometry import (box_pairs, edges_of, ee_crossing, layered_boxes,
+                            point_triangle, segment_segment, vf_crossing)
 
 __all__ = ["SelfCollision", "SelfPairs", "SelfCounters", "merge_contacts"]
 
@@ -164,14 +164,20 @@ class SelfCollision:
         count as touching: a hundredth of the thickness."""
         return 0.01 * self.config.thickness
 
-    def set_topology(self, triangles: np.ndarray) -> None:
-        """Use the active triangles ``(t, 3)`` (compact vertex indices); edges are
-        rebuilt only when the array is a new one (a topology change)."""
+    def set_topology(self, triangles: np.ndarray, uv: np.ndarray) -> None:
+        """Use the active triangles ``(t, 3)`` (compact vertex indices) and the
+        particles' rest coordinates ``uv`` ``(n, 2)`` (m); edges and material
+        boxes are rebuilt only when the array is a new one (a topology change)."""
         if triangles is self._triangles:
             return
+        start = _time.perf_counter()
         self._triangles = triangles
         self.triangles = np.asarray(triangles, dtype=np.int64)
         self.edges = edges_of(self.triangles)
+        self.uv_lo = uv[self.triangles].min(axis=1)
+        self.uv_hi = uv[self.triangles].max(axis=1)
+        self._cache = None
+        self.counters.ms += 1e3 * (_time.perf_counter() - start)
 
     # -- pairs ----------------------------------------------------------------
     def _vf_candidates(self, lo_v, hi_v, lo_t, hi_t):
@@ -180,9 +186,10 @@ class SelfCollision:
         keep = ~np.any(tri == iv[:, None], axis=1)           # shares the vertex
         return iv[keep], tri[keep]
 
-    def _ee_candidates(self, lo_e, hi_e):
+    @staticmethod
+    def _ee_candidates(edges, lo_e, hi_e):
         i, j = box_pairs(lo_e, hi_e)
-        e1, e2 = self.edges[i], self.edges[j]
+        e1, e2 = edges[i], edges[j]
         keep = ~((e1[:, :1] == e2).any(axis=1) | (e1[:, 1:] == e2).any(axis=1))
         return e1[keep], e2[keep]
 
@@ -209,13 +216,35 @@ class SelfCollision:
         """Broad and narrow phase at ``x0`` for vertex boxes ``lo``/``hi`` ``(n, 3)``:
         the candidate pairs with their sides and start gap vectors, kept for
         the continuous check of the same step."""
-        t, e = self.triangles, self.edges
-        verts, tris = self._vf_candidates(lo, hi, lo[t].min(axis=1), hi[t].max(axis=1))
-        e1, e2 = self._ee_candidates(lo[e].min(axis=1), hi[e].max(axis=1))
+        t = self.triangles
+        lo_t, hi_t = lo[t].min(axis=1), hi[t].max(axis=1)
+        # Only where two layers share a cell: the rest of the cloth has no pair.
+        layered = layered_boxes(lo_t, hi_t, self.uv_lo, self.uv_hi,
+                                0.5 * float((hi - lo).max(initial=0.0)))
+        if not layered.any():
+            return self._no_candidates(x0, lo, hi)
+        active = np.zeros(len(x0), bool)
+        active[t[layered].ravel()] = True
+        e = self.edges[active[self.edges].all(axis=1)]
+        tri_ids = np.flatnonzero(layered)
+        vert_ids = np.flatnonzero(active)
+        it, iv = box_pairs(lo_t[tri_ids], hi_t[tri_ids], lo[vert_ids], hi[vert_ids])
+        verts, tris = vert_ids[iv], t[tri_ids[it]]
+        keep = ~np.any(tris == verts[:, None], axis=1)         # shares the vertex
+        verts, tris = verts[keep], tris[keep]
+        e1, e2 = self._ee_candidates(e, lo[e].min(axis=1), hi[e].max(axis=1))
         vf, vf_gap = self._vf_pairs(x0, verts, tris)
         ee, ee_gap = self._ee_pairs(x0, e1, e2)
         return dict(x0=x0, lo=lo, hi=hi, verts=verts, tris=tris, e1=e1, e2=e2,
                     sides=[vf, ee], gaps=[vf_gap, ee_gap])
+
+    @staticmethod
+    def _no_candidates(x0, lo, hi) -> dict:
+        i1, i2, w = np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros((0, 3))
+        i3 = np.zeros((0, 3), np.int64)
+        sides = (i3, w, i3, w)
+        return dict(x0=x0, lo=lo, hi=hi, verts=i1, tris=i3, e1=i2, e2=i2,
+                    sides=[sides, sides], gaps=[w, w])
 
     def proximity(self, x: np.ndarray, v: np.ndarray, h: float) -> SelfPairs:
         """Contact pairs at the start of a step: closer than ``2·thickness``, or
@@ -233,6 +262,11 @@ class SelfCollision:
         cand = self._candidates(x, np.minimum(x, xp) - 0.5 * band,
                                 np.maximum(x, xp) + 0.5 * band)
         self._cache = cand
+        c = self.counters
+        c.attempts += 1
+        if not len(cand["verts"]) and not len(cand["e1"]):
+            c.ms += 1e3 * (_time.perf_counter() - start)
+            return SelfPairs.empty()
         parts = []
         for (a, wa, b, wb), gap in zip(cand["sides"], cand["gaps"]):
             d = np.linalg.norm(gap, axis=1)
@@ -244,8 +278,6 @@ class SelfCollision:
             parts.append(SelfPairs(a[keep], wa[keep], b[keep], wb[keep], n[keep], d[keep],
                                    np.zeros(int(keep.sum()), bool)))
         pairs = parts[0].concat(parts[1])
-        c = self.counters
-        c.attempts += 1
         c.with_pairs += bool(len(pairs))
         c.pairs += len(pairs)
         c.ms += 1e3 * (_time.perf_counter() - start)
@@ -269,6 +301,9 @@ class SelfCollision:
                 or np.any(x1 - 0.5 * eta < cand["lo"]) or np.any(x1 + 0.5 * eta > cand["hi"])):
             cand = self._candidates(x0, np.minimum(x0, x1) - 0.5 * eta,
                                     np.maximum(x0, x1) + 0.5 * eta)
+        if not len(cand["verts"]) and not len(cand["e1"]):
+            self.counters.ms += 1e3 * (_time.perf_counter() - start)
+            return SelfPairs.empty()
         step = x1 - x0
         parts = []
         for kind, (a, wa, b, wb), gap in zip(("vf", "ee"), cand["sides"], cand["gaps"]):

@@ -361,7 +361,6 @@ class TimeStepper:
         sc = self.self_collision
         solved = contacts
         if sc is not None:
-            sc.set_topology(elements.triangles)
             pairs = sc.proximity(state.positions, state.velocities, h)
             # Infinitely heavy for the pairs' common velocity: held particles and
             # those resting on an obstacle (not merely in its speculative band).
