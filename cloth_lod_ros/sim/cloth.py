@@ -386,20 +386,30 @@ class ClothSim(HeldInputs):
         if (self.contacts is not None and len(self.contacts)
                 and self._contacts_version == h.version):     # same compact numbering
             in_contact[self.contacts.indices] = True
+        sc, own = self.self_collision, self.scene.self_collision
+        layered = sc.near(self.state.positions, own.detail_distance) if sc is not None else None
         decision = self.lod_policy.decide(
             h, self.elements, self.vertex_ids, self.triangle_ids, self.state.positions,
             self.state.velocities, self.masses, time, held_nodes, detail_points=detail_points,
             in_contact=in_contact,
-            supported=self._merge_would_sink if self.obstacles else None)
+            supported=self._merge_would_sink if self.obstacles else None,
+            layered=layered, layered_level=own.detail_level)
         if not decision.refine and not decision.merge:
             return 0, 0
         self._sync_hierarchy()
+        old_ids = self.vertex_ids
         splits, merges = LodPolicy.apply(h, decision, time,
                                          log=self._step_operations)
         if splits or merges:
             if self.obstacles and splits:
                 self._lift_new_particles()
             self._adopt_hierarchy()
+            if sc is not None and splits:
+                # A split's particle sits on the chord, which can lie inside the
+                # thickness of a layer the curved cloth is wrapped on: move it out
+                # (never across anything).
+                new = np.flatnonzero(~np.isin(self.vertex_ids, old_ids))
+                self.state.positions = sc.separate(self.state.positions, new)
         return splits, merges
 
     def _lift_new_particles(self) -> None:

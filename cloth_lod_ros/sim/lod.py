@@ -129,7 +129,8 @@ class LodPolicy:
                triangle_ids: np.ndarray, x: np.ndarray, v: np.ndarray, masses: np.ndarray,
                time: float, held: np.ndarray, detail_points: np.ndarray | None = None,
                in_contact: np.ndarray | None = None, supported=None,
-               evaluation=None) -> LodDecision:
+               evaluation=None, layered: np.ndarray | None = None,
+               layered_level: int = 0) -> LodDecision:
         """Choose operations for the active mesh described by the compact arrays.
 
         Args:
@@ -149,6 +150,10 @@ class LodPolicy:
                 edge into it); those are not merged.
             evaluation: the force evaluation of this state, to reuse its hinge
                 angles and gradients.
+            layered: ``(n,)`` compact particles close to another layer of the
+                cloth (self-collision): no merge touches them (a merge moves
+                the surface, and could push it into the other layer), and
+                triangles with such a corner are refined to ``layered_level``.
         """
         cfg = self.config
         measures = hinge_measures(elements, self.material.bend_stiffness, x, v, evaluation)
@@ -159,6 +164,10 @@ class LodPolicy:
         refine = []
         detail = self._detail_triangles(elements, hierarchy, triangle_ids, detail_points,
                                         in_contact)
+        if layered is not None and layered_level > 0 and layered.any():
+            near = layered[elements.triangles].any(axis=1)
+            low = hierarchy.level[triangle_ids] < layered_level
+            detail = np.union1d(detail, triangle_ids[near & low])
         if len(order) or len(detail):
             candidates = np.concatenate([triangle_ids[hinge_tris[order].ravel()], detail])
             levels = hierarchy.level[candidates]
@@ -187,6 +196,10 @@ class LodPolicy:
                 ok &= ~(near & (child_level - 1 < cfg.detail_level))
             if supported is not None and ok.any():
                 ok[ok] &= ~supported(vertices[ok])
+            if layered is not None and layered.any():
+                ends = np.searchsorted(vertex_ids, hierarchy.vertex_edge[vertices])
+                ok &= ~(layered[np.searchsorted(vertex_ids, vertices)]
+                        | layered[ends].any(axis=1))
             # (e) the merge adds at most ½ ρ A v² (elastic + kinetic + gravity).
             keep = np.flatnonzero(ok)
             added = merge_energy_change(hierarchy, elements, vertex_ids, triangle_ids,

@@ -223,13 +223,12 @@ class SelfCollision:
                                 0.5 * float((hi - lo).max(initial=0.0)))
         if not layered.any():
             return self._no_candidates(x0, lo, hi)
-        active = np.zeros(len(x0), bool)
-        active[t[layered].ravel()] = True
-        e = self.edges[active[self.edges].all(axis=1)]
-        tri_ids = np.flatnonzero(layered)
-        vert_ids = np.flatnonzero(active)
-        it, iv = box_pairs(lo_t[tri_ids], hi_t[tri_ids], lo[vert_ids], hi[vert_ids])
-        verts, tris = vert_ids[iv], t[tri_ids[it]]
+        # Two layers somewhere: every pair is a candidate (near a fold the
+        # layers are closer than S in the material, and they are the ones
+        # that touch first).
+        e = self.edges
+        it, verts = box_pairs(lo_t, hi_t, lo, hi)
+        tris = t[it]
         keep = ~np.any(tris == verts[:, None], axis=1)         # shares the vertex
         verts, tris = verts[keep], tris[keep]
         e1, e2 = self._ee_candidates(e, lo[e].min(axis=1), hi[e].max(axis=1))

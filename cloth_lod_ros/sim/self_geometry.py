@@ -66,15 +66,16 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
     """Which boxes share a grid cell with a box from another layer, ``(k,)`` bool.
 
     Every box (a triangle's, padded by ``pad`` m) is entered in the cells it
-    covers, of side c (the median box extent).  One connected piece of cloth
-    inside a cell (diameter √3 c, boxes reaching ``pad`` beyond it) compressed
-    to no less than half its rest size spans at most ``S = 2 (√3 c + 2 pad)``
-    of material, plus the material extent of the boxes themselves.  A cell
-    whose boxes' material coordinates ``uv_lo``/``uv_hi`` ``(k, 2)`` spread
-    further than ``S + 2 e`` (e the largest material extent of a box in it)
-    holds two layers, and all its boxes are flagged.  So a pair of boxes
-    more than that apart in the material is never missed, and a cloth with no
-    fold pays one hash and no pair at all.
+    covers, of side c (the median box extent).  Two triangles of one piece of
+    cloth without a fold that reach into the same cell have points within
+    √3 c + 2 pad of each other in space, hence (however much the cloth is
+    compressed, down to half its rest size) within ``S = 2 (√3 c + 2 pad)``
+    in the material.  A cell holding two triangles whose material boxes
+    ``uv_lo``/``uv_hi`` ``(k, 2)`` are more than ``S`` apart along u or v
+    (``max(lo) − min(hi) > S``: one reduction per cell) holds two layers, and
+    all its boxes are flagged.  So a pair of triangles more than ``S`` apart
+    in the material is never missed, and a cloth with no fold pays one hash
+    and no pair at all.
     """
     if not len(lo):
         return np.zeros(0, dtype=bool)
@@ -85,14 +86,11 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
     order = np.argsort(key, kind="stable")
     key, box = key[order], box[order]
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    extent = (uv_hi - uv_lo).max(axis=1)
-    spread = np.zeros(len(starts))
+    gap = np.full(len(starts), -np.inf)
     for d in (0, 1):
-        spread = np.maximum(spread, np.maximum.reduceat(uv_hi[box, d], starts)
-                            - np.minimum.reduceat(uv_lo[box, d], starts))
-    limit = 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad) + 2.0 * np.maximum.reduceat(extent[box],
-                                                                           starts)
-    layered = spread > limit
+        gap = np.maximum(gap, np.maximum.reduceat(uv_lo[box, d], starts)
+                         - np.minimum.reduceat(uv_hi[box, d], starts))
+    layered = gap > 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad)
     out = np.zeros(len(lo), dtype=bool)
     if layered.any():
         counts = np.diff(np.r_[starts, len(key)])

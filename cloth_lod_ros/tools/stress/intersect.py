@@ -30,7 +30,8 @@ def _orient(a, b, c, d) -> np.ndarray:
 
 def intersecting_pairs(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Pairs of triangles sharing no vertex that intersect, ``(k, 2)`` sorted
-    triangle indices (each pair once).
+    triangle indices (each pair once).  (A triangle folded through a neighbour
+    it shares a corner with is a distorted mesh, not two layers crossing.)
 
     Args:
         x: ``(n, 3)`` positions, m.  triangles: ``(t, 3)`` vertex indices.
@@ -66,5 +67,6 @@ def intersecting_pairs(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     out = set()
     for (i, j), other in zip(e[hit], it[hit]):
         for own in np.flatnonzero((tri == i).any(axis=1) & (tri == j).any(axis=1)):
-            out.add((min(int(own), int(other)), max(int(own), int(other))))
+            if not np.intersect1d(tri[own], tri[other]).size:     # non-adjacent only
+                out.add((min(int(own), int(other)), max(int(own), int(other))))
     return np.array(sorted(out), dtype=np.int64).reshape(-1, 2)
