@@ -105,7 +105,8 @@ class SelfCounters:
     re-solves; ``stopped``: steps that needed the stopped zone (``stopped_particles``
     in all); ``unresolved``: steps whose crossings not even that removed
     (held particles); ``lifted``: particles made by splits moved out of another
-    layer; ``ms``: time spent in this module (detection, checks), ms.
+    layer; ``broad``: broad phases run (the others reused a cached one);
+    ``ms``: time spent in this module (detection, checks), ms.
     """
 
     attempts: int = 0
@@ -117,6 +118,7 @@ class SelfCounters:
     stopped_particles: int = 0
     unresolved: int = 0
     lifted: int = 0
+    broad: int = 0
     ms: float = 0.0
 
 
@@ -155,6 +157,7 @@ class SelfCollision:
         self.counters = SelfCounters()
         self.last_constraints = 0       # self-contact constraints of the last solve
         self._triangles = None
+        self._cache = None
         self.triangles = np.zeros((0, 3), np.int64)
         self.edges = np.zeros((0, 2), np.int64)
 
@@ -180,12 +183,6 @@ class SelfCollision:
         self.counters.ms += 1e3 * (_time.perf_counter() - start)
 
     # -- pairs ----------------------------------------------------------------
-    def _vf_candidates(self, lo_v, hi_v, lo_t, hi_t):
-        it, iv = box_pairs(lo_t, hi_t, lo_v, hi_v)
-        tri = self.triangles[it]
-        keep = ~np.any(tri == iv[:, None], axis=1)           # shares the vertex
-        return iv[keep], tri[keep]
-
     @staticmethod
     def _ee_candidates(edges, lo_e, hi_e):
         i, j = box_pairs(lo_e, hi_e)
@@ -212,38 +209,52 @@ class SelfCollision:
         gap = np.einsum("kj,kjd->kd", wa, x[a]) - np.einsum("kj,kjd->kd", wb, x[b])
         return (a, wa, b, wb), gap
 
-    def _candidates(self, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> dict:
-        """Broad and narrow phase at ``x0`` for vertex boxes ``lo``/``hi`` ``(n, 3)``:
-        the candidate pairs with their sides and start gap vectors, kept for
-        the continuous check of the same step."""
+    def _broad(self, lo: np.ndarray, hi: np.ndarray, need: float) -> dict:
+        """Candidate pairs whose vertex boxes ``lo``/``hi`` ``(n, 3)`` (m),
+        padded by ``need`` m, may overlap.  Built for boxes padded by at least
+        half the contact band plus a margin of one thickness, and reused while
+        later padded boxes stay inside them (a Verlet list: a cloth at rest on
+        itself pays the broad phase once, not every step)."""
+        c = self._cache
+        if (c is not None and len(c["lo"]) == len(lo)
+                and not np.any(lo - need < c["lo"]) and not np.any(hi + need > c["hi"])):
+            return c
+        pad = max(need, self.config.thickness) + self.config.thickness
+        lo, hi = lo - pad, hi + pad
         t = self.triangles
         lo_t, hi_t = lo[t].min(axis=1), hi[t].max(axis=1)
-        # Only where two layers share a cell: the rest of the cloth has no pair.
-        layered = layered_boxes(lo_t, hi_t, self.uv_lo, self.uv_hi,
-                                0.5 * float((hi - lo).max(initial=0.0)))
-        if not layered.any():
-            return self._no_candidates(x0, lo, hi)
+        empty = np.zeros(0, np.int64)
+        c = dict(lo=lo, hi=hi, verts=empty, tris=np.zeros((0, 3), np.int64),
+                 e1=np.zeros((0, 2), np.int64), e2=np.zeros((0, 2), np.int64), narrow=None)
+        self._cache = c
+        self.counters.broad += 1
+        # Only if two layers share a cell (material spread): otherwise no pair.
+        if not layered_boxes(lo_t, hi_t, self.uv_lo, self.uv_hi,
+                             0.5 * float((hi - lo).max(initial=0.0))).any():
+            return c
         # Two layers somewhere: every pair is a candidate (near a fold the
-        # layers are closer than S in the material, and they are the ones
-        # that touch first).
-        e = self.edges
+        # layers are closer than S in the material, and they touch first).
         it, verts = box_pairs(lo_t, hi_t, lo, hi)
         tris = t[it]
         keep = ~np.any(tris == verts[:, None], axis=1)         # shares the vertex
-        verts, tris = verts[keep], tris[keep]
+        e = self.edges
         e1, e2 = self._ee_candidates(e, lo[e].min(axis=1), hi[e].max(axis=1))
-        vf, vf_gap = self._vf_pairs(x0, verts, tris)
-        ee, ee_gap = self._ee_pairs(x0, e1, e2)
-        return dict(x0=x0, lo=lo, hi=hi, verts=verts, tris=tris, e1=e1, e2=e2,
-                    sides=[vf, ee], gaps=[vf_gap, ee_gap])
+        c.update(verts=verts[keep], tris=tris[keep], e1=e1, e2=e2)
+        return c
+
+    def _narrow(self, c: dict, x: np.ndarray):
+        """Sides and gap vectors of ``c``'s candidates at ``x`` (cached for the
+        same array: the continuous check of a step reuses its start's)."""
+        if c["narrow"] is not None and c["narrow"][0] is x:
+            return c["narrow"][1]
+        vf = self._vf_pairs(x, c["verts"], c["tris"])
+        ee = self._ee_pairs(x, c["e1"], c["e2"])
+        c["narrow"] = (x, (vf, ee))
+        return vf, ee
 
     @staticmethod
-    def _no_candidates(x0, lo, hi) -> dict:
-        i1, i2, w = np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros((0, 3))
-        i3 = np.zeros((0, 3), np.int64)
-        sides = (i3, w, i3, w)
-        return dict(x0=x0, lo=lo, hi=hi, verts=i1, tris=i3, e1=i2, e2=i2,
-                    sides=[sides, sides], gaps=[w, w])
+    def _none(c: dict) -> bool:
+        return not len(c["verts"]) and not len(c["e1"])
 
     def proximity(self, x: np.ndarray, v: np.ndarray, h: float) -> SelfPairs:
         """Contact pairs at the start of a step: closer than ``2·thickness``, or
@@ -254,20 +265,16 @@ class SelfCollision:
         """
         start = _time.perf_counter()
         band = 2.0 * self.config.thickness
-        # Boxes swept over the predicted motion and padded by the thickness: a
-        # solve whose particles stay inside them needs no new broad phase for
-        # its continuous check (see crossings).
+        # Boxes swept over the predicted motion and padded by the thickness.
         xp = x + h * v
-        cand = self._candidates(x, np.minimum(x, xp) - 0.5 * band,
-                                np.maximum(x, xp) + 0.5 * band)
-        self._cache = cand
-        c = self.counters
-        c.attempts += 1
-        if not len(cand["verts"]) and not len(cand["e1"]):
-            c.ms += 1e3 * (_time.perf_counter() - start)
+        c = self._broad(np.minimum(x, xp), np.maximum(x, xp), 0.5 * band)
+        counters = self.counters
+        counters.attempts += 1
+        if self._none(c):
+            counters.ms += 1e3 * (_time.perf_counter() - start)
             return SelfPairs.empty()
         parts = []
-        for (a, wa, b, wb), gap in zip(cand["sides"], cand["gaps"]):
+        for (a, wa, b, wb), gap in self._narrow(c, x):
             d = np.linalg.norm(gap, axis=1)
             ok = d > 1e-12 * max(1.0, band)
             n = gap / np.where(ok, d, 1.0)[:, None]
@@ -277,9 +284,9 @@ class SelfCollision:
             parts.append(SelfPairs(a[keep], wa[keep], b[keep], wb[keep], n[keep], d[keep],
                                    np.zeros(int(keep.sum()), bool)))
         pairs = parts[0].concat(parts[1])
-        c.with_pairs += bool(len(pairs))
-        c.pairs += len(pairs)
-        c.ms += 1e3 * (_time.perf_counter() - start)
+        counters.with_pairs += bool(len(pairs))
+        counters.pairs += len(pairs)
+        counters.ms += 1e3 * (_time.perf_counter() - start)
         return pairs
 
     def crossings(self, x0: np.ndarray, x1: np.ndarray) -> SelfPairs:
@@ -287,34 +294,30 @@ class SelfCollision:
         ``x1`` (``(n, 3)``, m), as held contact pairs with the side and gap of
         ``x0``.
 
-        The candidates of :meth:`proximity` at the same ``x0`` are reused when
-        every particle ends inside its box there (then every pair whose swept
-        boxes overlap is among them); otherwise the broad phase runs again.
-        A pair is tested only if its gap at ``x0`` can close: by at most the
+        The candidates come from the same (cached) broad phase, valid while
+        every particle's box from ``x0`` to ``x1`` lies inside the cached
+        boxes (then every pair whose swept boxes overlap is among them).  A
+        pair is tested only if its gap at ``x0`` can close: by at most the
         largest relative displacement of the pair's corners (0 for a rigid
         motion)."""
         start = _time.perf_counter()
         eta = self.eta
-        cand = getattr(self, "_cache", None)
-        if (cand is None or cand["x0"] is not x0 or len(cand["lo"]) != len(x1)
-                or np.any(x1 - 0.5 * eta < cand["lo"]) or np.any(x1 + 0.5 * eta > cand["hi"])):
-            cand = self._candidates(x0, np.minimum(x0, x1) - 0.5 * eta,
-                                    np.maximum(x0, x1) + 0.5 * eta)
-        if not len(cand["verts"]) and not len(cand["e1"]):
+        c = self._broad(np.minimum(x0, x1), np.maximum(x0, x1), 0.5 * eta)
+        if self._none(c):
             self.counters.ms += 1e3 * (_time.perf_counter() - start)
             return SelfPairs.empty()
         step = x1 - x0
         parts = []
-        for kind, (a, wa, b, wb), gap in zip(("vf", "ee"), cand["sides"], cand["gaps"]):
+        for kind, ((a, wa, b, wb), gap) in zip(("vf", "ee"), self._narrow(c, x0)):
             d = np.linalg.norm(gap, axis=1)
             # Largest |Δa_i − Δb_j| over the corners carrying the points.
             rel = step[a][:, :, None, :] - step[b][:, None, :, :]
             reach = np.sqrt(np.max(np.sum(rel * rel, axis=3), axis=(1, 2))) + eta
             maybe = np.flatnonzero(d <= reach)
             if kind == "vf":
-                hit = vf_crossing(x0, x1, cand["verts"][maybe], cand["tris"][maybe], eta)
+                hit = vf_crossing(x0, x1, c["verts"][maybe], c["tris"][maybe], eta)
             else:
-                hit = ee_crossing(x0, x1, cand["e1"][maybe], cand["e2"][maybe], eta)
+                hit = ee_crossing(x0, x1, c["e1"][maybe], c["e2"][maybe], eta)
             k = maybe[hit]
             n = _side_normals(x0, x1, a[k], wa[k], b[k], wb[k], gap[k], d[k])
             parts.append(SelfPairs(a[k], wa[k], b[k], wb[k], n, d[k], np.ones(len(k), bool)))
@@ -348,9 +351,18 @@ class SelfCollision:
         u = share_a[:, None] * va + (1.0 - share_a)[:, None] * vb
         rows, normals, dist, vel, hold = [], [], [], [], []
         distance = pairs.gap - self.config.thickness
-        for side, weights, sign in ((pairs.a, pairs.wa, 1.0), (pairs.b, pairs.wb, -1.0)):
+        held = np.zeros(len(masses), bool)
+        held[exclude] = True
+        # Side A (the vertex; the first edge) is constrained against side B's
+        # surface.  Side B only where A cannot move (held): a vertex near the
+        # other layer has its own pair there, and constraining a whole
+        # triangle to a velocity found at one point of it would drag corners
+        # that carry little of the contact.
+        a_held = np.all(held[pairs.a] | (pairs.wa <= 0), axis=1)
+        for side, weights, sign, use in ((pairs.a, pairs.wa, 1.0, ~a_held),
+                                         (pairs.b, pairs.wb, -1.0, a_held)):
             carries = (weights >= _MIN_SHARE) | (weights == weights.max(axis=1, keepdims=True))
-            carries &= weights > 0
+            carries &= (weights > 0) & use[:, None]
             k, j = np.nonzero(carries)
             rows.append(side[k, j])
             normals.append(sign * pairs.normal[k])
@@ -359,7 +371,7 @@ class SelfCollision:
             hold.append(pairs.hold[k])
         rows, normals, dist, vel, hold = (np.concatenate(v) for v in
                                           (rows, normals, dist, vel, hold))
-        ok = ~np.isin(rows, exclude)
+        ok = ~held[rows]
         rows, normals, dist, vel, hold = rows[ok], normals[ok], dist[ok], vel[ok], hold[ok]
         # One per particle: the tightest, held ones first on a tie.
         order = np.lexsort((~hold, dist, rows))
@@ -415,14 +427,13 @@ class SelfCollision:
         """``(n,)`` bool: particles within ``distance`` m of a triangle they are
         not a corner of (another layer), or corners of such a triangle."""
         start = _time.perf_counter()
-        t = self.triangles
-        lo, hi = x - 0.5 * distance, x + 0.5 * distance
-        verts, tris = self._vf_candidates(lo, hi, lo[t].min(axis=1), hi[t].max(axis=1))
-        (_, _, _, w), gap = self._vf_pairs(x, verts, tris)
-        close = np.linalg.norm(gap, axis=1) < distance
+        c = self._broad(x, x, 0.5 * distance)
         out = np.zeros(len(x), bool)
-        out[verts[close]] = True
-        out[tris[close].ravel()] = True
+        if len(c["verts"]):
+            (_, _, _, _), gap = self._vf_pairs(x, c["verts"], c["tris"])
+            close = np.linalg.norm(gap, axis=1) < distance
+            out[c["verts"][close]] = True
+            out[c["tris"][close].ravel()] = True
         self.counters.ms += 1e3 * (_time.perf_counter() - start)
         return out
 
@@ -436,13 +447,11 @@ class SelfCollision:
         if not len(moved):
             return out
         thickness = self.config.thickness
-        t = self.triangles
-        lo, hi = x - 0.5 * thickness, x + 0.5 * thickness
+        c = self._broad(x, x, 0.5 * thickness)
         mask = np.zeros(len(x), bool)
         mask[moved] = True
-        verts, tris = self._vf_candidates(lo, hi, lo[t].min(axis=1), hi[t].max(axis=1))
-        keep = mask[verts]
-        verts, tris = verts[keep], tris[keep]
+        keep = mask[c["verts"]]
+        verts, tris = c["verts"][keep], c["tris"][keep]
         (_, _, _, _), gap = self._vf_pairs(x, verts, tris)
         d = np.linalg.norm(gap, axis=1)
         inside = (d < thickness) & (d > 1e-12)

@@ -15,7 +15,8 @@ continuous (swept) tests, vectorised over many pairs.  Numpy only.
   the time of coplanarity of the four points is a root of a cubic in t
   (Provot 1997; Bridson et al. 2002), found by splitting [0, 1] at the roots
   of the derivative into monotonic pieces and bisecting each piece whose ends
-  differ in sign (52 halvings: the root to ~2e-16 of the step); at each root
+  differ in sign (32 halvings: the root to 2e-10 of the step, far below
+  ``eta`` for any motion a step makes); at each root
   the two primitives are tested for proximity (``eta``, m).  A crossing of a
   layer (a vertex through a triangle or an edge through an edge) changes the
   sign of that cubic, so every crossing is found; a grazing touch that does
@@ -239,7 +240,7 @@ def _roots01(coef: np.ndarray) -> np.ndarray:
     a, b = lo[rows, cols], hi[rows, cols]
     rising = fhi[rows, cols] > flo[rows, cols]
     p0, p1, p2, p3 = c0[rows], c1[rows], c2[rows], c3[rows]
-    for _ in range(52):
+    for _ in range(32):
         m = 0.5 * (a + b)
         fm = ((p3 * m + p2) * m + p1) * m + p0
         right = (fm < 0) == rising          # the root is in the right half
