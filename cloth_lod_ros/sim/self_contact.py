@@ -307,13 +307,17 @@ class SelfCollision:
             self.counters.ms += 1e3 * (_time.perf_counter() - start)
             return SelfPairs.empty()
         step = x1 - x0
+        move = np.linalg.norm(step, axis=1)
         parts = []
         for kind, ((a, wa, b, wb), gap) in zip(("vf", "ee"), self._narrow(c, x0)):
             d = np.linalg.norm(gap, axis=1)
-            # Largest |Δa_i − Δb_j| over the corners carrying the points.
-            rel = step[a][:, :, None, :] - step[b][:, None, :, :]
+            # The gap closes by at most the largest |Δa_i − Δb_j| over the
+            # corners carrying the points; first the cheaper bound by the sum
+            # of the largest moves of each side.
+            maybe = np.flatnonzero(d <= move[a].max(axis=1) + move[b].max(axis=1) + eta)
+            rel = step[a[maybe]][:, :, None, :] - step[b[maybe]][:, None, :, :]
             reach = np.sqrt(np.max(np.sum(rel * rel, axis=3), axis=(1, 2))) + eta
-            maybe = np.flatnonzero(d <= reach)
+            maybe = maybe[d[maybe] <= reach]
             if kind == "vf":
                 hit = vf_crossing(x0, x1, c["verts"][maybe], c["tris"][maybe], eta)
             else:
