@@ -183,6 +183,12 @@ class SelfCollision:
         self.counters.ms += 1e3 * (_time.perf_counter() - start)
 
     # -- pairs ----------------------------------------------------------------
+    def _normals(self, x: np.ndarray) -> np.ndarray:
+        """``(t, 3)`` unit normals of the triangles at ``x`` (m)."""
+        t = self.triangles
+        n = np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]])
+        return n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+
     @staticmethod
     def _ee_candidates(edges, lo_e, hi_e):
         i, j = box_pairs(lo_e, hi_e)
@@ -209,7 +215,7 @@ class SelfCollision:
         gap = np.einsum("kj,kjd->kd", wa, x[a]) - np.einsum("kj,kjd->kd", wb, x[b])
         return (a, wa, b, wb), gap
 
-    def _broad(self, lo: np.ndarray, hi: np.ndarray, need: float) -> dict:
+    def _broad(self, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, need: float) -> dict:
         """Candidate pairs whose vertex boxes ``lo``/``hi`` ``(n, 3)`` (m),
         padded by ``need`` m, may overlap.  Built for boxes padded by at least
         half the contact band plus a margin of one thickness, and reused while
@@ -228,16 +234,21 @@ class SelfCollision:
                  e1=np.zeros((0, 2), np.int64), e2=np.zeros((0, 2), np.int64), narrow=None)
         self._cache = c
         self.counters.broad += 1
-        # Only if two layers share a cell (material spread): otherwise no pair.
-        if not layered_boxes(lo_t, hi_t, self.uv_lo, self.uv_hi,
-                             0.5 * float((hi - lo).max(initial=0.0))).any():
+        # Only if a cell may hold two layers (material spread, folded faces).
+        layered = layered_boxes(lo_t, hi_t, self.uv_lo, self.uv_hi,
+                                0.5 * float((hi - lo).max(initial=0.0)), self._normals(x))
+        if not layered.any():
             return c
-        # Two layers somewhere: every pair is a candidate (near a fold the
-        # layers are closer than S in the material, and they touch first).
-        it, verts = box_pairs(lo_t, hi_t, lo, hi)
-        tris = t[it]
+        # The pair search covers the flagged triangles, their corners and
+        # the edges between those corners.
+        tri_ids = np.flatnonzero(layered)
+        active = np.zeros(len(lo), bool)
+        active[t[tri_ids].ravel()] = True
+        vert_ids = np.flatnonzero(active)
+        it, iv = box_pairs(lo_t[tri_ids], hi_t[tri_ids], lo[vert_ids], hi[vert_ids])
+        verts, tris = vert_ids[iv], t[tri_ids[it]]
         keep = ~np.any(tris == verts[:, None], axis=1)         # shares the vertex
-        e = self.edges
+        e = self.edges[active[self.edges].all(axis=1)]
         e1, e2 = self._ee_candidates(e, lo[e].min(axis=1), hi[e].max(axis=1))
         c.update(verts=verts[keep], tris=tris[keep], e1=e1, e2=e2)
         return c
@@ -267,7 +278,7 @@ class SelfCollision:
         band = 2.0 * self.config.thickness
         # Boxes swept over the predicted motion and padded by the thickness.
         xp = x + h * v
-        c = self._broad(np.minimum(x, xp), np.maximum(x, xp), 0.5 * band)
+        c = self._broad(x, np.minimum(x, xp), np.maximum(x, xp), 0.5 * band)
         counters = self.counters
         counters.attempts += 1
         if self._none(c):
@@ -302,7 +313,7 @@ class SelfCollision:
         motion)."""
         start = _time.perf_counter()
         eta = self.eta
-        c = self._broad(np.minimum(x0, x1), np.maximum(x0, x1), 0.5 * eta)
+        c = self._broad(x0, np.minimum(x0, x1), np.maximum(x0, x1), 0.5 * eta)
         if self._none(c):
             self.counters.ms += 1e3 * (_time.perf_counter() - start)
             return SelfPairs.empty()
@@ -358,13 +369,16 @@ class SelfCollision:
         held = np.zeros(len(masses), bool)
         held[exclude] = True
         # Side A (the vertex; the first edge) is constrained against side B's
-        # surface.  Side B only where A cannot move (held): a vertex near the
-        # other layer has its own pair there, and constraining a whole
-        # triangle to a velocity found at one point of it would drag corners
-        # that carry little of the contact.
-        a_held = np.all(held[pairs.a] | (pairs.wa <= 0), axis=1)
-        for side, weights, sign, use in ((pairs.a, pairs.wa, 1.0, ~a_held),
-                                         (pairs.b, pairs.wb, -1.0, a_held)):
+        # surface.  Side B as well where A cannot give way (held, or resting
+        # on an obstacle, whose constraint wins over this one) and for pairs
+        # found crossing: otherwise a vertex near the other layer has its
+        # own pair there, and constraining a whole triangle to a velocity
+        # found at one point of it would drag corners that carry little of
+        # the contact (and add energy).
+        a_stuck = np.all(fixed[pairs.a] | (pairs.wa <= 0), axis=1)
+        both = a_stuck | pairs.hold
+        for side, weights, sign, use in ((pairs.a, pairs.wa, 1.0, np.ones(len(both), bool)),
+                                         (pairs.b, pairs.wb, -1.0, both)):
             carries = (weights >= _MIN_SHARE) | (weights == weights.max(axis=1, keepdims=True))
             carries &= (weights > 0) & use[:, None]
             k, j = np.nonzero(carries)
@@ -377,8 +391,8 @@ class SelfCollision:
                                           (rows, normals, dist, vel, hold))
         ok = ~held[rows]
         rows, normals, dist, vel, hold = rows[ok], normals[ok], dist[ok], vel[ok], hold[ok]
-        # One per particle: the tightest, held ones first on a tie.
-        order = np.lexsort((~hold, dist, rows))
+        # One per particle: a crossing pair's first, then the tightest.
+        order = np.lexsort((dist, ~hold, rows))
         _, first = np.unique(rows[order], return_index=True)
         pick = order[first]
         out = ContactSet(rows[pick], normals[pick], dist[pick],
@@ -431,7 +445,7 @@ class SelfCollision:
         """``(n,)`` bool: particles within ``distance`` m of a triangle they are
         not a corner of (another layer), or corners of such a triangle."""
         start = _time.perf_counter()
-        c = self._broad(x, x, 0.5 * distance)
+        c = self._broad(x, x, x, 0.5 * distance)
         out = np.zeros(len(x), bool)
         if len(c["verts"]):
             (_, _, _, _), gap = self._vf_pairs(x, c["verts"], c["tris"])
@@ -451,7 +465,7 @@ class SelfCollision:
         if not len(moved):
             return out
         thickness = self.config.thickness
-        c = self._broad(x, x, 0.5 * thickness)
+        c = self._broad(x, x, x, 0.5 * thickness)
         mask = np.zeros(len(x), bool)
         mask[moved] = True
         keep = mask[c["verts"]]

@@ -2,8 +2,8 @@
 continuous (swept) tests, vectorised over many pairs.  Numpy only.
 
 * :func:`layered_boxes` - the same hash of triangle boxes, asking only
-  which cells hold cloth from two places far apart in the material (two
-  layers): on a cloth without folds nothing further runs.
+  which cells may hold two layers (cloth far apart in the material, or faces
+  turned by more than 60°): on a cloth without folds nothing further runs.
 * :func:`box_pairs` - a uniform spatial hash: every axis-aligned box is
   entered in each grid cell it covers, boxes sharing a cell are candidates,
   and candidates whose boxes do not overlap are dropped.  No Python loop over
@@ -63,20 +63,26 @@ def _cells(lo: np.ndarray, hi: np.ndarray, cell: float, origin: np.ndarray,
 
 
 def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.ndarray,
-                  pad: float) -> np.ndarray:
-    """Which boxes share a grid cell with a box from another layer, ``(k,)`` bool.
+                  pad: float, normals: np.ndarray) -> np.ndarray:
+    """Whether any grid cell may hold two layers of cloth: ``(k,)`` bool per box.
 
     Every box (a triangle's, padded by ``pad`` m) is entered in the cells it
-    covers, of side c (the median box extent).  Two triangles of one piece of
-    cloth without a fold that reach into the same cell have points within
-    √3 c + 2 pad of each other in space, hence (however much the cloth is
-    compressed, down to half its rest size) within ``S = 2 (√3 c + 2 pad)``
-    in the material.  A cell holding two triangles whose material boxes
-    ``uv_lo``/``uv_hi`` ``(k, 2)`` are more than ``S`` apart along u or v
-    (``max(lo) − min(hi) > S``: one reduction per cell) holds two layers, and
-    all its boxes are flagged.  So a pair of triangles more than ``S`` apart
-    in the material is never missed, and a cloth with no fold pays one hash
-    and no pair at all.
+    covers, of side c (the median box extent).  A cell is flagged when
+
+    * two of its triangles are far apart in the material: their material
+      boxes ``uv_lo``/``uv_hi`` ``(k, 2)`` are more than
+      ``S = 2 (√3 c + 2 pad)`` apart along u or v (``max(lo) − min(hi)``, one
+      reduction per cell).  Two triangles of one piece of cloth without a fold
+      that reach into the cell have points within √3 c + 2 pad in space,
+      hence (the cloth compressed to no less than half its rest size) within
+      S in the material; or
+    * its triangles' unit ``normals`` ``(k, 3)`` do not all lie within 90° of
+      their mean direction.  The two sides of a fold face opposite ways, so
+      a cell holding both (as any cell does where they come within the
+      padding of each other) is flagged however tight the fold.
+
+    A cloth without folds flags nothing and pays this one hash; with them,
+    only the flagged boxes go on to the pair search.
     """
     if not len(lo):
         return np.zeros(0, dtype=bool)
@@ -92,9 +98,14 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
         gap = np.maximum(gap, np.maximum.reduceat(uv_lo[box, d], starts)
                          - np.minimum.reduceat(uv_hi[box, d], starts))
     layered = gap > 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad)
+    counts = np.diff(np.r_[starts, len(key)])
+    n = normals[box]
+    mean = np.add.reduceat(n, starts, axis=0)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1), 1e-300)[:, None]
+    cosine = np.einsum("kd,kd->k", n, np.repeat(mean, counts, axis=0))
+    layered |= np.minimum.reduceat(cosine, starts) < 0.0
     out = np.zeros(len(lo), dtype=bool)
     if layered.any():
-        counts = np.diff(np.r_[starts, len(key)])
         out[box[np.repeat(layered, counts)]] = True
     return out
 
