@@ -163,8 +163,8 @@ class SelfCollisionConfig:
     enabled: bool = _spec("bool", default=False, doc="keep layers of the cloth apart")
     thickness: float = _spec("float", "m", gt=0, default=0.004,
                              doc="distance kept between layers of the cloth")
-    friction: float = _spec("float", "", ge=0, default=0.1,
-                            doc="Coulomb coefficient between layers")
+    friction: float = _spec("float", "", ge=0, default=0.0,
+                            doc="Coulomb coefficient between layers (0: frictionless)")
     max_resolves: int = _spec("int", "", ge=0, le=20, default=4,
                               doc="re-solves of a step in which two layers met")
     detail_level: int = _spec("int", "", ge=0, le=12, default=0,

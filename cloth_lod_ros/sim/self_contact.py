@@ -159,7 +159,14 @@ class SelfCollision:
         self._triangles = None
         self._cache = None
         self.triangles = np.zeros((0, 3), np.int64)
-        self.edges = np.zeros((0, 2), np.int64)
+        self._edges = np.zeros((0, 2), np.int64)
+
+    @property
+    def edges(self) -> np.ndarray:
+        """``(e, 2)`` the mesh's edges (sorted vertex pairs)."""
+        if self._edges is None:
+            self._edges = edges_of(self.triangles)
+        return self._edges
 
     @property
     def eta(self) -> float:
@@ -176,9 +183,9 @@ class SelfCollision:
         start = _time.perf_counter()
         self._triangles = triangles
         self.triangles = np.asarray(triangles, dtype=np.int64)
-        self.edges = edges_of(self.triangles)
-        self.uv_lo = uv[self.triangles].min(axis=1)
-        self.uv_hi = uv[self.triangles].max(axis=1)
+        self._edges = None              # built when a pair search first needs them
+        corners = uv[self.triangles]
+        self.uv_lo, self.uv_hi = corners.min(axis=1), corners.max(axis=1)
         self._cache = None
         self.counters.ms += 1e3 * (_time.perf_counter() - start)
 
@@ -231,7 +238,8 @@ class SelfCollision:
         lo_t, hi_t = lo[t].min(axis=1), hi[t].max(axis=1)
         empty = np.zeros(0, np.int64)
         c = dict(lo=lo, hi=hi, verts=empty, tris=np.zeros((0, 3), np.int64),
-                 e1=np.zeros((0, 2), np.int64), e2=np.zeros((0, 2), np.int64), narrow=None)
+                 e1=np.zeros((0, 2), np.int64), e2=np.zeros((0, 2), np.int64), narrow=None,
+                 layered=False)
         self._cache = c
         self.counters.broad += 1
         # Only if a cell may hold two layers (material spread, folded faces).
@@ -239,6 +247,7 @@ class SelfCollision:
                                 0.5 * float((hi - lo).max(initial=0.0)), self._normals(x))
         if not layered.any():
             return c
+        c["layered"] = True
         # The pair search covers the flagged triangles, their corners and
         # the edges between those corners.
         tri_ids = np.flatnonzero(layered)
@@ -443,10 +452,19 @@ class SelfCollision:
     # -- level of detail ----------------------------------------------------------
     def near(self, x: np.ndarray, distance: float) -> np.ndarray:
         """``(n,)`` bool: particles within ``distance`` m of a triangle they are
-        not a corner of (another layer), or corners of such a triangle."""
+        not a corner of (another layer), or corners of such a triangle.
+
+        When the last broad phase (the last step's, over its whole motion)
+        found no cell that may hold two layers, nothing is near and no new
+        search is made: the cloth was farther than its padding from any other
+        layer a step ago."""
         start = _time.perf_counter()
-        c = self._broad(x, x, x, 0.5 * distance)
         out = np.zeros(len(x), bool)
+        last = self._cache
+        if last is not None and not last["layered"] and len(last["lo"]) == len(x):
+            self.counters.ms += 1e3 * (_time.perf_counter() - start)
+            return out
+        c = self._broad(x, x, x, 0.5 * distance)
         if len(c["verts"]):
             (_, _, _, _), gap = self._vf_pairs(x, c["verts"], c["tris"])
             close = np.linalg.norm(gap, axis=1) < distance

@@ -67,7 +67,8 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
     """Whether any grid cell may hold two layers of cloth: ``(k,)`` bool per box.
 
     Every box (a triangle's, padded by ``pad`` m) is entered in the cells it
-    covers, of side c (the median box extent).  A cell is flagged when
+    covers, of side c (1.5 times the median box extent: each box covers a
+    few cells).  A cell is flagged when
 
     * two of its triangles are far apart in the material: their material
       boxes ``uv_lo``/``uv_hi`` ``(k, 2)`` are more than
@@ -86,7 +87,7 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
     """
     if not len(lo):
         return np.zeros(0, dtype=bool)
-    cell = max(float(np.median((hi - lo).max(axis=1))), 1e-9)
+    cell = 1.5 * max(float(np.median((hi - lo).max(axis=1))), 1e-9)
     origin = lo.min(axis=0)
     dims = np.floor((hi.max(axis=0) - origin) / cell).astype(np.int64) + 1
     box, key = _cells(lo, hi, cell, origin, dims)
