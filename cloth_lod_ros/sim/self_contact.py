@@ -11,20 +11,28 @@ before it did not suffice:
    nearest point of the triangle or of the other edge), with the unit normal
    ``n`` from B to A **at the start of the step** - the side each layer is on
    is taken from the last state known to be free of crossings, never from a
-   predicted one.  Each pair gives every particle of either side that carries
-   a real share of the contact point (weight ≥ 0.25, or the largest) the
-   per-particle velocity constraint of obstacle contact
-   (:class:`~cloth_lod_ros.sim.contact.ContactSet`): normal ``±n``, gap −
+   predicted one.  Candidates come from a spatial hash that first asks which
+   cells may hold two layers at all (:func:`~cloth_lod_ros.sim.self_geometry.layered_boxes`:
+   a cloth without folds stops there) and are kept while the cloth stays
+   inside their padded boxes (a Verlet list).  The particles of side A that
+   carry a real share of the contact point (weight ≥ 0.25, or the largest)
+   get the per-particle velocity constraint of obstacle contact
+   (:class:`~cloth_lod_ros.sim.contact.ContactSet`): normal ``n``, gap −
    thickness as its distance, and as the *surface velocity* the pair's common
    (mass-weighted) velocity - an inelastic contact that conserves the pair's
-   momentum.  Held particles and particles on an obstacle count as infinitely
-   heavy, so a layer falling onto cloth that lies on a table stops on it.
-   The implicit solve then lands each constrained particle at ``thickness``
-   from the moving surface, releases the contacts that would pull and applies
+   momentum.  Held particles and particles resting on an obstacle count as
+   infinitely heavy, so a layer falling onto cloth that lies on a table stops
+   on it.  Side B is constrained too (normal ``−n``) only where A cannot give
+   way (held, or on an obstacle) and for pairs found crossing: every vertex
+   near the other layer has its own pair, and forcing a triangle's corners to
+   the velocity of one point of it dragged them and added energy.  The
+   implicit solve then lands each constrained particle at ``thickness`` from
+   the moving surface, releases the contacts that would pull and applies
    Coulomb friction (``friction``) by rounds, exactly as for obstacles.  A
-   particle with several candidate constraints keeps the tightest (smallest
-   distance); against an obstacle's constraint the obstacle wins unless both
-   push the same way and the self-contact is tighter.
+   particle with several candidate constraints keeps a crossing pair's, then
+   the tightest (smallest distance); against an obstacle's constraint the
+   obstacle wins unless both push the same way and the self-contact is
+   tighter.
 2. **Continuous check and re-solve** (after every solve).  Every vertex–
    triangle and edge–edge pair is tested for meeting while the particles
    move on straight lines from the start to the end of the step

@@ -58,7 +58,7 @@ class StepStats:
     ``self_collision_ms`` is the time the step spent in self-collision code
     (detection, continuous checks, LOD queries; not the re-solves, which are
     in ``solve_ms``) and ``self_contact_count`` the particles a self-contact
-    constrained at the end of the step (0 when it is off).
+    constrained in the step's last solve (0 when it is off).
     """
 
     step_index: int
