@@ -125,7 +125,7 @@ def _strip_scene(level=3, lod=False, enabled=True, **extra):
             "obstacles": [{"type": "plane", "centre": [0, 0, 0], "normal": [0, 0, 1],
                            "friction": 0.5}],
             "simulation": {"time_step": 1 / 60, "duration": 1.0},
-            "self_collision": {"enabled": enabled, "thickness": THICKNESS},
+            "self_collision": {"enabled": enabled, "thickness": THICKNESS, "friction": 0.1},
             "lod": {"enabled": lod, "initial_level": level if lod else 0}}
     data.update(extra)
     return data
@@ -200,7 +200,7 @@ def test_a_cloth_dropped_on_a_folded_cloth_stays_above_it():
                 gaps.append(p[2] - z)
     # Above it everywhere, and kept about the thickness apart (the push-out of a
     # particle found inside the thickness is gradual, so not everywhere exactly).
-    assert len(gaps) > 10 and min(gaps) > 0.0
+    assert len(gaps) >= 5 and min(gaps) > 0.0
     assert np.median(gaps) > 0.75 * THICKNESS
     assert sim.self_collision.counters.with_pairs > 0
 
