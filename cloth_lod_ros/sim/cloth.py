@@ -41,6 +41,7 @@ from .kinematics import ObstacleInputs
 from .lod import LodPolicy
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
+from .self_contact import SelfCollision
 from .state import ClothState, SimulationError, StepStats
 from .timestepping import TimeStepper
 
@@ -149,8 +150,13 @@ class ClothSim(HeldInputs, ObstacleInputs):
         # live) and grasps.  A scene without obstacles never evaluates contact code.
         self._make_obstacles()
         self.solver.friction_rounds = scene.contact.friction_rounds
+        # Self-collision only when enabled: otherwise no code of it runs.
+        self.self_collision = (SelfCollision(scene.self_collision)
+                               if scene.self_collision.enabled else None)
+        if self.self_collision is not None:
+            self.self_collision.set_topology(self.elements.triangles, self.mesh.uv)
         self.stepper = TimeStepper(self.solver, scene.simulation, self.obstacles,
-                                   scene.contact)
+                                   scene.contact, self.self_collision)
         self.grasps = [Grasp.from_config(g) for g in scene.grasps]
         self._scripted_closed = {g.name: False for g in self.grasps}
         self.contacts = None
@@ -170,6 +176,8 @@ class ClothSim(HeldInputs, ObstacleInputs):
         levels = self.mesh.levels
         self.solver.reset_topology(uv=self.mesh.uv,
                                    graded=bool(len(levels) and levels.min() != levels.max()))
+        if getattr(self, "self_collision", None) is not None:
+            self.self_collision.set_topology(self.elements.triangles, self.mesh.uv)
         self._locator = None
         # A holding patch (pin or grasp) holds the material inside it: particles
         # that splits made there are held too (else a patch on a coarse mesh
@@ -245,6 +253,8 @@ class ClothSim(HeldInputs, ObstacleInputs):
             self._run_grasp_script(next_time)
         refines = merges = 0
         lod_ms = 0.0
+        sc = self.self_collision
+        sc_ms = sc.counters.ms if sc is not None else 0.0
         if self.hierarchy is not None and self.step_count % self.scene.lod.check_interval == 0:
             lod_start = _time.perf_counter()
             # The criterion needs only the hinges' angles and gradients, computed
@@ -314,7 +324,9 @@ class ClothSim(HeldInputs, ObstacleInputs):
             smallest_step=steps.smallest, newton_iterations=report.newton_iterations,
             solves=report.solves, solver=self.solver.backend.name,
             air_power=air_power(self.elements, self.scene.air, self.scene.material.air_drag,
-                                self.masses, x, v))
+                                self.masses, x, v),
+            self_collision_ms=sc.counters.ms - sc_ms if sc is not None else 0.0,
+            self_contact_count=sc.last_constraints if sc is not None else 0)
         self.stats.append(stats)
         self.step_count += 1
         if self.keep_stats is not None and len(self.stats) > 2 * self.keep_stats:
@@ -394,6 +406,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
         only).  Returns ``(splits, merges)`` performed.
         """
         lookahead = (self.scene.lod.check_interval - 1) * self.time_step
+        sc, own = self.self_collision, self.scene.self_collision
         total_splits = total_merges = 0
         for round_index in range(max(1, int(rounds))):
             h, time = self.hierarchy, self.state.time
@@ -403,20 +416,30 @@ class ClothSim(HeldInputs, ObstacleInputs):
             if (self.contacts is not None and len(self.contacts)
                     and self._contacts_version == h.version):     # same compact numbering
                 in_contact[self.contacts.indices] = True
+            layered = (sc.near(self.state.positions, own.detail_distance)
+                       if sc is not None else None)
             decision = self.lod_policy.decide(
                 h, self.elements, self.vertex_ids, self.triangle_ids, self.state.positions,
                 self.state.velocities, self.masses, time, held_nodes,
                 detail_points=detail_points, in_contact=in_contact,
                 supported=self._merge_would_sink if self.obstacles else None,
-                simplify=simplify and round_index == 0, lookahead=lookahead)
+                simplify=simplify and round_index == 0, lookahead=lookahead,
+                layered=layered, layered_level=own.detail_level)
             if not decision.refine and not decision.merge:
                 break
             self._sync_hierarchy()
+            old_ids = self.vertex_ids
             splits, merges = LodPolicy.apply(h, decision, time, log=self._step_operations)
             if splits or merges:
                 if self.obstacles and splits:
                     self._lift_new_particles()
                 self._adopt_hierarchy()
+                if sc is not None and splits:
+                    # A split's particle sits on the chord, which can lie inside the
+                    # thickness of a layer the curved cloth is wrapped on: move it
+                    # out (never across anything).
+                    new = np.flatnonzero(~np.isin(self.vertex_ids, old_ids))
+                    self.state.positions = sc.separate(self.state.positions, new)
             total_splits += splits
             total_merges += merges
             if not splits:

@@ -1,7 +1,8 @@
 """Scene configuration: typed dataclasses with SI units, loaded from YAML.
 
 A scene file has the sections ``cloth``, ``material``, ``air``, ``pins``,
-``simulation``, ``solver``, ``lod``, ``obstacles``, ``contact`` and ``grasps``,
+``simulation``, ``solver``, ``lod``, ``obstacles``, ``contact``, ``grasps`` and
+``self_collision``,
 each field with its unit in the dataclasses below (the README lists them all).
 Loading is strict: a missing required field, an unknown field, a
 value of the wrong type or out of range raises :class:`SceneError` whose message
@@ -25,15 +26,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .scene_yaml import MAX_NESTING, MAX_SCENE_BYTES, SceneError
-from .scene_yaml import HugeInteger as _HugeInteger
 from .scene_yaml import load_yaml as _load_yaml
 from .scene_yaml import shorten as _show
 from .scene_files import (apply_overrides, builtin_scene_names, find_scene_file,  # noqa: F401
                           parse_override, scenes_directory)
+from .config_values import MAX_INTEGER, check_bounds as _check_bounds
+from .config_values import number as _number, vector as _vector
 
 __all__ = [
     "SceneError", "ClothConfig", "MaterialConfig", "AirConfig", "PinConfig", "LodConfig",
-    "ObstacleConfig", "ContactConfig", "GraspConfig",
+    "ObstacleConfig", "ContactConfig", "GraspConfig", "SelfCollisionConfig",
     "SimulationConfig", "SolverConfig", "SceneConfig",
     "load_scene", "scene_from_dict", "scene_to_dict", "apply_overrides",
     "find_scene_file", "builtin_scene_names", "scenes_directory",
@@ -43,8 +45,6 @@ __all__ = [
 #: Most triangles of the finest uniform mesh, 2 x blocks_u x blocks_v x 2^cloth.level
 #: (2^21: base_blocks [1024, 1024] at level 0, a 1025 x 1025 particle grid).
 MAX_TRIANGLES = 2 ** 21
-#: Largest value of an integer field.
-MAX_INTEGER = 2 ** 31 - 1
 
 
 def _spec(kind: str, unit: str = "", *, gt: float | None = None,
@@ -172,6 +172,25 @@ class ContactConfig:
 
 
 @dataclass(frozen=True)
+class SelfCollisionConfig:
+    """The cloth kept from passing through itself (design §3, "Self-collision")."""
+
+    enabled: bool = _spec("bool", default=False, doc="keep layers of the cloth apart")
+    thickness: float = _spec("float", "m", gt=0, default=0.004,
+                             doc="distance kept between layers of the cloth")
+    friction: float = _spec("float", "", ge=0, default=0.0,
+                            doc="Coulomb coefficient between layers (0: frictionless)")
+    max_resolves: int = _spec("int", "", ge=0, le=20, default=4,
+                              doc="re-solves of a step in which two layers met")
+    detail_level: int = _spec("int", "", ge=0, le=12, default=0,
+                              doc="with LOD on, refine to at least this level where "
+                                  "layers are within detail_distance (0: off)")
+    detail_distance: float = _spec("float", "m", gt=0, default=0.012,
+                                   doc="with LOD on, no merge (and detail_level) where "
+                                       "another layer is this close")
+
+
+@dataclass(frozen=True)
 class GraspConfig:
     """A gripper holding the cloth at a material point (scripted or driven at run time)."""
 
@@ -285,42 +304,14 @@ class SceneConfig:
     obstacles: tuple = _spec("obstacles", default=())
     contact: ContactConfig = _spec("section", default_factory=ContactConfig)
     grasps: tuple = _spec("grasps", default=())
+    self_collision: SelfCollisionConfig = _spec("section",
+                                                default_factory=SelfCollisionConfig)
 
 
 _SECTION_TYPES = {"cloth": ClothConfig, "simulation": SimulationConfig,
                   "material": MaterialConfig, "air": AirConfig, "solver": SolverConfig,
-                  "lod": LodConfig, "contact": ContactConfig}
-
-
-def _number(value: Any, path: str, integer: bool = False) -> float:
-    if isinstance(value, _HugeInteger):
-        raise SceneError(f"field '{path}' is too large: {value!r}")
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(f"field '{path}' must be a number, got {_show(value)}")
-    if isinstance(value, int):
-        if integer and abs(value) > MAX_INTEGER:
-            raise SceneError(f"field '{path}' is too large: {_show(value)} "
-                             f"(at most {MAX_INTEGER})")
-        try:
-            float(value)
-        except OverflowError:
-            raise SceneError(f"field '{path}' is too large: {_show(value)} "
-                             "(overflows a float)") from None
-        return value if integer else float(value)
-    if not math.isfinite(value):
-        raise SceneError(f"field '{path}' must be finite, got {value!r}")
-    if integer and not value.is_integer():
-        raise SceneError(f"field '{path}' must be an integer, got {value!r}")
-    if integer and abs(value) > MAX_INTEGER:
-        raise SceneError(f"field '{path}' is too large: {value!r} (at most {MAX_INTEGER})")
-    return int(value) if integer else float(value)
-
-
-def _vector(value: Any, path: str, length: int) -> tuple:
-    if not isinstance(value, (list, tuple)) or len(value) != length:
-        raise SceneError(f"field '{path}' must be a list of {length} numbers, "
-                         f"got {_show(value)}")
-    return tuple(_number(v, f"{path}[{i}]") for i, v in enumerate(value))
+                  "lod": LodConfig, "contact": ContactConfig,
+                  "self_collision": SelfCollisionConfig}
 
 
 def _unit_quaternion(vec: tuple, path: str) -> tuple:
@@ -329,21 +320,6 @@ def _unit_quaternion(vec: tuple, path: str) -> tuple:
     if norm == 0.0 or not math.isfinite(norm):
         raise SceneError(f"field '{path}' must be a non-zero quaternion [x, y, z, w]")
     return tuple(c / norm for c in vec) if abs(norm - 1.0) > 1e-12 else vec
-
-
-def _check_bounds(value, meta: dict, path: str) -> None:
-    unit = f" {meta['unit']}" if meta["unit"] else ""
-    items = value if isinstance(value, tuple) else (value,)
-    for item in items:
-        if meta["gt"] is not None and not item > meta["gt"]:
-            raise SceneError(f"field '{path}' must be > {meta['gt']}{unit}, "
-                             f"got {_show(value)}")
-        if meta["ge"] is not None and not item >= meta["ge"]:
-            raise SceneError(f"field '{path}' must be >= {meta['ge']}{unit}, "
-                             f"got {_show(value)}")
-        if meta["le"] is not None and not item <= meta["le"]:
-            raise SceneError(f"field '{path}' must be <= {meta['le']}{unit}, "
-                             f"got {_show(value)}")
 
 
 def _convert(value: Any, meta: dict, path: str, section_type=None):
@@ -485,6 +461,20 @@ def scene_from_dict(data: Any) -> SceneConfig:
     if lod.enabled and lod.initial_level > cloth.level:
         raise SceneError(f"field 'lod.initial_level' ({lod.initial_level}) must not exceed "
                          f"'cloth.level' ({cloth.level}), the maximum level with LOD on")
+    own = scene.self_collision
+    if own.enabled:
+        # The nearest particle of a flat 4-8 mesh that is not a triangle's
+        # corner is leg/sqrt(2) from it (leg = block side / 2^(level/2)):
+        # the contact band (2 x thickness) must fit inside, or the flat cloth
+        # would be in contact with itself.
+        gap = side_u / 2 ** (cloth.level / 2) / math.sqrt(2.0)
+        if 2.0 * own.thickness >= 0.9 * gap:
+            raise SceneError(f"field 'self_collision.thickness' ({own.thickness} m) must be "
+                             f"below {0.45 * gap:.3g} m: twice it must fit between "
+                             f"neighbouring layers of the finest mesh ({gap:.3g} m apart)")
+        if own.detail_distance < own.thickness:
+            raise SceneError("field 'self_collision.detail_distance' must be at least "
+                             "'self_collision.thickness'")
     for i, obstacle in enumerate(scene.obstacles):
         if obstacle.type == "box" and obstacle.rounding >= min(obstacle.half_extents):
             raise SceneError(f"field 'obstacles[{i}].rounding' must be below the smallest "

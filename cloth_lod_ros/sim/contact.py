@@ -306,14 +306,17 @@ class ContactSet:
                           self.friction[keep], self.hold[keep],
                           None if self.velocity is None else self.velocity[keep])
 
+    def surface_velocity(self) -> np.ndarray:
+        """``(k, 3)`` m/s: :attr:`velocity`, zeros where it is ``None``."""
+        return np.zeros((len(self), 3)) if self.velocity is None else self.velocity
+
     def union(self, other: "ContactSet") -> "ContactSet":
         """Contacts of both; where a particle is in both, ``other`` wins."""
         keep = ~np.isin(self.indices, other.indices)
         velocity = None
         if self.velocity is not None or other.velocity is not None:
-            mine = np.zeros((len(self), 3)) if self.velocity is None else self.velocity
-            theirs = np.zeros((len(other), 3)) if other.velocity is None else other.velocity
-            velocity = np.concatenate([mine[keep], theirs])
+            velocity = np.concatenate([self.surface_velocity()[keep],
+                                       other.surface_velocity()])
         return ContactSet(np.concatenate([self.indices[keep], other.indices]),
                           np.concatenate([self.normals[keep], other.normals]),
                           np.concatenate([self.distance[keep], other.distance]),

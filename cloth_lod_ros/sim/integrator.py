@@ -367,7 +367,9 @@ class ImplicitStageSolver:
             sliding = (contacts.friction <= 0.0) | slip
             projectors = np.zeros((len(contacts), 3, 3))
             projectors[sliding] = np.eye(3) - normals[sliding, :, None] * normals[sliding, None, :]
-            # Held contacts: full Δv to (target_vn n); sliding: normal part only.
+            # Held contacts: full Δv to (target_vn n) plus the surface's
+            # tangential velocity (a moving surface carries a sticking particle);
+            # sliding: normal part only.
             prescribed = target_vn[:, None] * normals - current
             surface_vn = contacts.normal_speed()
             if surface_vn is not None:

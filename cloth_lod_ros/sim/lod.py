@@ -131,7 +131,8 @@ class LodPolicy:
                time: float, held: np.ndarray, detail_points: np.ndarray | None = None,
                in_contact: np.ndarray | None = None, supported=None,
                evaluation=None, simplify: bool = True,
-               lookahead: float = 0.0) -> LodDecision:
+               lookahead: float = 0.0, layered: np.ndarray | None = None,
+               layered_level: int = 0) -> LodDecision:
         """Choose operations for the active mesh described by the compact arrays.
 
         Args:
@@ -158,6 +159,10 @@ class LodPolicy:
                 would at ``θ + lookahead · dθ/dt`` (so a mesh checked every k
                 steps is refined as early as one checked at every step; 0:
                 the paper's rule).
+            layered: ``(n,)`` compact particles close to another layer of the
+                cloth (self-collision): no merge touches them (a merge moves
+                the surface, and could push it into the other layer), and
+                triangles with such a corner are refined to ``layered_level``.
         """
         cfg = self.config
         measures = hinge_measures(elements, self.material.bend_stiffness, x, v, evaluation)
@@ -172,6 +177,10 @@ class LodPolicy:
         refine = []
         detail = self._detail_triangles(elements, hierarchy, triangle_ids, detail_points,
                                         in_contact)
+        if layered is not None and layered_level > 0 and layered.any():
+            near = layered[elements.triangles].any(axis=1)
+            low = hierarchy.level[triangle_ids] < layered_level
+            detail = np.union1d(detail, triangle_ids[near & low])
         if len(order) or len(detail):
             candidates = np.concatenate([triangle_ids[hinge_tris[order].ravel()], detail])
             levels = hierarchy.level[candidates]
@@ -200,6 +209,10 @@ class LodPolicy:
                 ok &= ~(near & (child_level - 1 < cfg.detail_level))
             if supported is not None and ok.any():
                 ok[ok] &= ~supported(vertices[ok])
+            if layered is not None and layered.any():
+                ends = np.searchsorted(vertex_ids, hierarchy.vertex_edge[vertices])
+                ok &= ~(layered[np.searchsorted(vertex_ids, vertices)]
+                        | layered[ends].any(axis=1))
             # (e) the merge adds at most ½ ρ A v² (elastic + kinetic + gravity).
             keep = np.flatnonzero(ok)
             added = merge_energy_change(hierarchy, elements, vertex_ids, triangle_ids,

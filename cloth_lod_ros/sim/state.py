@@ -57,6 +57,10 @@ class StepStats:
     step (face drag relative to the wind plus the isotropic
     ``material.air_drag``; :func:`~cloth_lod_ros.sim.forces.air_power`): never
     positive in still air, where ``−air_power`` is what the air dissipates.
+    ``self_collision_ms`` is the time the step spent in self-collision code
+    (detection, continuous checks, LOD queries; not the re-solves, which are
+    in ``solve_ms``) and ``self_contact_count`` the particles a self-contact
+    constrained in the step's last solve (0 when it is off).
     """
 
     step_index: int
@@ -90,6 +94,8 @@ class StepStats:
     smallest_step: float = 0.0
     newton_iterations: int = 1
     air_power: float = 0.0
+    self_collision_ms: float = 0.0
+    self_contact_count: int = 0
 
     @property
     def total_energy(self) -> float:

@@ -60,6 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .contact import find_contacts, penetrations
+from .self_contact import merge_contacts
 from .forces import Elements, stretch_lengths
 from .integrator import ImplicitStageSolver, SolveReport
 from .state import ClothState
@@ -244,10 +245,14 @@ class TimeStepper:
     growth_limits = (0.2, 2.0)  # bounds of the step-size factor after a step
     safety = 0.9
 
-    def __init__(self, solver: ImplicitStageSolver, simulation, obstacles: list, contact):
+    def __init__(self, solver: ImplicitStageSolver, simulation, obstacles: list, contact,
+                 self_collision=None):
         self.solver = solver
         self.obstacles = obstacles
         self.contact = contact
+        # SelfCollision or None (off: no self-collision code runs).
+        self.self_collision = self_collision
+        self._crossing = False
         self.configure(simulation)
         self._next_step: float | None = None
 
@@ -297,9 +302,16 @@ class TimeStepper:
                 elements, masses, current, previous, (indices, targets), h, moving)
             total.add(report)
             sound = self._acceptable(elements, current, new)
+            if self._crossing:
+                sound = False                # a layer went through another
             accurate = not adaptive or (sound and error <= self.tolerance)
             if (sound and accurate) or h <= smallest * (1.0 + 1e-9):
                 steps.forced += not (sound and accurate)
+                if self._crossing:
+                    # Last resort at the smallest step: stop the crossing zone.
+                    x, v, _, _ = self.self_collision.stop_zone(
+                        current.positions, new.positions, new.velocities, indices)
+                    new = ClothState(x, v, new.time)
                 steps.substeps += 1
                 steps.smallest = min(steps.smallest, h)
                 steps.largest = max(steps.largest, h)
@@ -309,11 +321,20 @@ class TimeStepper:
                 h = self._proposal(h, error) if adaptive else min(2.0 * h, frame)
             else:
                 steps.rejected += 1
+                if self._crossing:
+                    self.self_collision.counters.refused += 1
                 factor = (min(self._factor(error), 0.5) if adaptive and sound else 0.5)
                 h = max(h * factor, smallest)
         if adaptive:
             self._next_step = min(h, frame)
         return current, total, contacts, steps
+
+    def _with_self(self, contacts, pairs, velocities, masses, fixed, held_indices):
+        """Obstacle ``contacts`` merged with the self-contact constraints of ``pairs``."""
+        sc = self.self_collision
+        merged, sc.last_constraints = merge_contacts(
+            contacts, sc.constraints(pairs, velocities, masses, fixed, held_indices))
+        return merged
 
     def _factor(self, error: float) -> float:
         low, high = self.growth_limits
@@ -349,22 +370,56 @@ class TimeStepper:
         if self.obstacles:
             contacts = find_contacts(at_start, state.positions, thickness,
                                      exclude=indices, velocities=state.velocities, h=h)
+        sc = self.self_collision
+        solved = contacts
+        if sc is not None:
+            pairs = sc.proximity(state.positions, state.velocities, h)
+            # Infinitely heavy for the pairs' common velocity: held particles and
+            # those resting on an obstacle (not merely in its speculative band).
+            fixed = np.zeros(len(masses), dtype=bool)
+            fixed[indices] = True
+            if contacts is not None:
+                fixed[contacts.indices[contacts.distance < 0.5 * thickness]] = True
+            solved = self._with_self(contacts, pairs, state.velocities, masses, fixed, indices)
         result = self.scheme.step(self.solver, elements, masses, state, start_targets,
-                                  held, h, contacts)
+                                  held, h, solved)
         report = result.report
-        for _ in range(4 if self.obstacles else 0):
+        self._crossing = False
+        rounds = sc.config.max_resolves if sc is not None else (4 if self.obstacles else 0)
+        for attempt in range(rounds + (sc is not None)):
             # A particle that the start-of-step test missed (accelerated into an
-            # obstacle, or released and pushed in) gets a contact and the step is
+            # obstacle, or released and pushed in) gets a contact, a pair of the
+            # cloth that met during the step a held self-contact, and the step is
             # solved again.
-            missed = penetrations(at_end, state.positions, result.positions,
-                                  thickness, exclude=indices, h=h)
-            if not len(missed):
+            missed = crossed = None
+            if self.obstacles:
+                missed = penetrations(at_end, state.positions, result.positions,
+                                      thickness, exclude=indices, h=h)
+            if sc is not None:
+                crossed = sc.crossings(state.positions, result.positions)
+                self._crossing = bool(len(crossed))
+            if not (missed is not None and len(missed)) and not (crossed is not None
+                                                                 and len(crossed)):
                 break
-            contacts = contacts.union(missed)
+            if attempt == rounds:
+                break                        # (self-collision: the final check)
+            if missed is not None and len(missed):
+                contacts = contacts.union(missed)
+            solved = contacts
+            if sc is not None:
+                if len(crossed):
+                    sc.counters.resolves += 1
+                    pairs = pairs.concat(crossed)
+                if contacts is not None:
+                    fixed[contacts.indices[contacts.distance < 0.5 * thickness]] = True
+                solved = self._with_self(contacts, pairs, result.velocities, masses, fixed,
+                                         indices)
             result = self.scheme.step(self.solver, elements, masses, state, start_targets,
-                                      held, h, contacts)
+                                      held, h, solved)
             result.report.add(report)       # the first attempt's work counts too
             report = result.report
+        if sc is not None:
+            contacts = solved    # the LOD keeps detail where the cloth touches anything
         positions, velocities = result.positions, result.velocities
         held_contacts = result.contacts
         if held_contacts is not None and len(held_contacts):

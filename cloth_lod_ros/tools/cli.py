@@ -92,6 +92,7 @@ def _summary(sim: ClothSim, wall: float) -> str:
         f"max {it.max()}; worst residual {max(s.residual for s in st):.2e}; "
         f"{unconverged} unconverged step(s)",
         _lod_line(sim),
+        *_self_collision_line(sim),
         f"  final energy [J]: kinetic {last.kinetic_energy:.4g}, stretch "
         f"{last.stretch_energy:.4g}, shear {last.shear_energy:.4g}, bend "
         f"{last.bend_energy:.4g}; max strain {last.max_strain:.4f}, max speed "
@@ -115,6 +116,21 @@ def _lod_line(sim: ClothSim) -> str:
     return (f"  LOD (max level {sim.max_level}): {sum(s.refines for s in st)} splits, "
             f"{sum(s.merges for s in st)} merges; triangles mean {tris.mean():.0f}, "
             f"max {tris.max()}, final {tris[-1]}; {share:.1f} % of step time in LOD")
+
+
+def _self_collision_line(sim: ClothSim) -> list[str]:
+    """One line on self-collision (none when it is off): its share of the step
+    time and how often each fail-safe fired."""
+    sc = sim.self_collision
+    if sc is None:
+        return []
+    st, c = sim.stats, sim.self_collision.counters
+    ms = sum(s.self_collision_ms for s in st)
+    share = 100 * ms / max(sum(s.step_ms for s in st), 1e-12)
+    return [f"  self-collision: {ms / len(st):.2f} ms per step, {share:.1f} % of step time; "
+            f"{c.with_pairs} of {c.attempts} integrator steps had layers in contact; "
+            f"{c.resolves} re-solves, {c.refused} steps refused, {c.stopped} stopped zones, "
+            f"{c.unresolved} unresolved; {c.lifted} split particles moved out"]
 
 
 def _cmd_run(args) -> int:

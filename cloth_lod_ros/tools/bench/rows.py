@@ -35,6 +35,9 @@ def config_row(cfg: dict, runs: list[dict], reference: np.ndarray, times: list[f
     walls = np.array([r["cost"]["wall_s"] for r in runs]) / sim_s
     cpus = np.array([r["cost"]["cpu_s"] for r in runs]) / sim_s
     lod = np.array([r["cost"]["lod_ms"] / (1e3 * r["cost"]["wall_s"]) for r in runs])
+    # Self-collision (detection and checks; its re-solves are in solve_ms), of the step.
+    own = np.array([r["cost"].get("self_collision_ms", 0.0) / r["cost"]["internal_step_ms"]
+                    for r in runs])
     # Step time that StepStats gives to none of LOD, forces, assembly, solve
     # (energies, statistics, the step-size control's own tests).
     other = np.array([1.0 - (r["cost"]["lod_ms"] + r["cost"]["force_ms"] + r["cost"]["assembly_ms"]
@@ -61,6 +64,7 @@ def config_row(cfg: dict, runs: list[dict], reference: np.ndarray, times: list[f
         newton_iterations_per_frame=c["newton_iterations"] / frames,
         solves_per_frame=c["solves"] / frames,
         lod_share_median=float(np.median(lod)),
+        self_collision_share_median=float(np.median(own)),
         unattributed_share_median=float(np.median(other)),
         timing_overhead_share_max=float(overhead.max()),
         vertex_steps=c["vertex_steps"], triangle_steps=c["triangle_steps"],

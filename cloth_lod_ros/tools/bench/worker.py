@@ -108,6 +108,7 @@ def _worker(spec: dict) -> dict:
         force_ms=float(sum(s.force_ms for s in st)),
         assembly_ms=float(sum(s.assembly_ms for s in st)),
         solve_ms=float(sum(s.solve_ms for s in st)),
+        self_collision_ms=float(sum(s.self_collision_ms for s in st)),
         cg_iterations=int(sum(s.cg_iterations for s in st)),
         cg_iterations_max=int(max(s.cg_iterations for s in st)),
         solves=int(sum(s.solves for s in st)),

@@ -66,6 +66,9 @@ class Bounds:
         holder_tolerance: m; pins/grasped particles vs their targets.
         min_level: the deepest triangle level the run must reach (None: not
             checked); a case about deep hierarchies must actually get there.
+        layers: check after every step that no two triangles sharing no
+            vertex intersect (:mod:`~cloth_lod_ros.tools.stress.intersect`,
+            written apart from the simulator's self-collision).
     """
 
     max_strain: float
@@ -77,6 +80,7 @@ class Bounds:
     max_penetration: float = 1.0
     holder_tolerance: float = 1e-12
     min_level: int | None = None
+    layers: bool = False
 
 
 @dataclass(frozen=True)
@@ -331,6 +335,27 @@ CASES: tuple[Case, ...] = (
         bounds=Bounds(max_strain=_STRAIN),
         floor=0.0,              # the table
         driver_work=_pusher_work("pusher"),
+    ),
+    Case(
+        name="fold_in_half",
+        description="two grasps fold a cloth on a table in half and let go",
+        scene="fold_in_half",
+        overrides={},
+        # The fold needs the whole script (laid down at 1.9 s, let go at 2.2 s).
+        full=Variant(3.5, 5), quick=Variant(2.6, 4),
+        # The grasps lift half the cloth by at most 0.27 m at up to 2 m/s.
+        bounds=Bounds(max_strain=_STRAIN, layers=True),
+        floor=0.0,              # the table
+        driver_work=_lift_and_speed_work(0.27, 2.0),
+    ),
+    Case(
+        name="drop_crumple",
+        description="an upright cloth dropped on the floor folds onto itself",
+        scene="drop_crumple",
+        overrides={},
+        full=Variant(2.5, 5), quick=Variant(1.2, 4),
+        bounds=Bounds(max_strain=_STRAIN, layers=True),
+        floor=0.0,              # the floor
     ),
     Case(
         name="max_level_8",

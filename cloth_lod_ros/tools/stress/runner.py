@@ -29,7 +29,11 @@ recorded and checked against explicit bounds:
 * **topology** — operations (splits + merges) per second per active particle,
   in any 1 s window after start-up, below the case's bound (thrashing); the
   deepest level reached where a case is about depth;
-* **solver** — every linear solve converged.
+* **solver** — every linear solve converged;
+* **layers** — in the self-collision cases, after every step no two
+  triangles that share no vertex intersect (an independent check,
+  :mod:`~cloth_lod_ros.tools.stress.intersect`); the run also reports how
+  often each self-collision fail-safe fired.
 
 Numbers are SI: m, s, m/s, J.
 """
@@ -54,6 +58,7 @@ from ...sim.mesh48 import MeshError
 from ...sim import ClothSim, SimulationError
 
 from .cases import CASES, EPS, Bounds, Case, Event, _gravity
+from .intersect import intersecting_pairs
 
 __all__ = ["RunResult", "build_scene", "run_case", "run_cases", "format_table",
            "add_arguments", "run", "main"]
@@ -91,6 +96,8 @@ class RunResult:
     wall_seconds: float = 0.0
     failures: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
+    crossed_steps: int = 0          # steps ending with intersecting triangles (layers)
+    self_collision: dict = field(default_factory=dict)   # SelfCounters, summed
 
     @property
     def passed(self) -> bool:
@@ -118,6 +125,7 @@ class RunResult:
             smallest_step=stat(self.smallest_step, np.min),
             deepest_level=self.deepest_level,
             triangles_final=self.triangles_final, wall_seconds=self.wall_seconds,
+            crossed_steps=self.crossed_steps, self_collision=dict(self.self_collision),
             series=dict(time=self.time.tolist(), max_strain=self.max_strain.tolist(),
                         max_speed=self.max_speed.tolist(), energy=self.energy.tolist(),
                         cg_iterations=self.cg_iterations.tolist(),
@@ -259,6 +267,12 @@ def run_case(case: Case, lod: bool, quick: bool = False,
                     fail("mass", f"mass {total:.15g} kg != {nominal_mass:.15g} kg "
                                  f"at t = {t:.3f} s")
             _check_holders(sim, bounds, catch_up, fail)
+            if bounds.layers:
+                crossing = intersecting_pairs(sim.positions, sim.triangles)
+                if len(crossing):
+                    result.crossed_steps += 1
+                    fail("layers", f"{len(crossing)} pair(s) of triangles intersect "
+                                   f"at t = {t:.3f} s")
             if sim.obstacles:
                 depth = -min(float(o.distance(sim.positions)[0].min()) for o in sim.obstacles)
                 if depth > bounds.max_penetration * thickness:
@@ -271,6 +285,8 @@ def run_case(case: Case, lod: bool, quick: bool = False,
                 fail("mesh", f"hierarchy check: {exc}")
     finally:
         result.wall_seconds = _time.perf_counter() - start
+        if sim.self_collision is not None:
+            result.self_collision = dict(vars(sim.self_collision.counters))
         sim_log.removeHandler(collector)
         sim_log.propagate = propagate
 
@@ -293,7 +309,7 @@ def run_case(case: Case, lod: bool, quick: bool = False,
         bounds.startup)
     _check_series(result, bounds, fail)
     order = ("finite", "strain", "speed", "energy", "energy_final", "mass", "mesh", "pins",
-             "grasps", "catch_up", "contact", "topology", "level", "solver")
+             "grasps", "catch_up", "contact", "layers", "topology", "level", "solver")
     result.failures = [f"{k}: {failures[k]}" for k in order if k in failures]
     return result
 
@@ -425,6 +441,21 @@ def format_table(results) -> str:
     return "\n".join([format_header()] + [format_row(r) for r in results])
 
 
+def format_layers(result: RunResult) -> str:
+    """One line on a self-collision run: intersecting steps and how often each
+    fail-safe fired (empty for a run without self-collision)."""
+    c = result.self_collision
+    if not c:
+        return ""
+    return (f"  {result.case} LOD {'on' if result.lod else 'off'}: {result.crossed_steps} "
+            f"step(s) with intersecting triangles; {c['attempts']} attempts, "
+            f"{c['with_pairs']} with self-contact pairs; {c['resolves']} re-solves, "
+            f"{c['refused']} steps refused, {c['stopped']} stopped zones "
+            f"({c['stopped_particles']} particles), {c['unresolved']} unresolved; "
+            f"{c['lifted']} split particles moved out; {c['ms'] / 1e3:.2f} s in "
+            f"self-collision code")
+
+
 # -- command line -----------------------------------------------------------------
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -456,9 +487,13 @@ def run(args) -> int:
           "deepest reached; ops = splits + merges, max per s after start-up")
     print(format_header(), flush=True)
     start = _time.perf_counter()
+    def progress(r):
+        print(format_row(r), flush=True)
+        if r.self_collision:
+            print(format_layers(r), flush=True)
+
     results = run_cases([by_name[n] for n in names], lod_modes, args.quick,
-                        progress=lambda r: print(format_row(r), flush=True),
-                        extra=list(getattr(args, "set", None) or []))
+                        progress=progress, extra=list(getattr(args, "set", None) or []))
     wall = _time.perf_counter() - start
     failed = [r for r in results if not r.passed]
     print(f"{len(results) - len(failed)}/{len(results)} runs passed in {wall:.1f} s wall")
