@@ -118,7 +118,7 @@ def test_thrashing_without_hysteresis_is_caught():
         case, overrides={**case.overrides, "lod.min_lifetime": 0.0,
                          "lod.max_merge_speed": 100.0,
                          "lod.max_hinge_rate": 1e3, "lod.max_bend_force": 1e3,
-                         "air.density": 0.0})
+                         "air.density": 0.0, "lod.check_interval": 1})
     result = run_case(no_hysteresis, lod=True, quick=True)
     assert not result.passed
     assert [f.split(":")[0] for f in result.failures] == ["topology"]

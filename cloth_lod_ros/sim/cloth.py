@@ -283,8 +283,10 @@ class ClothSim(HeldInputs, ObstacleInputs):
             None if sweep is None else sweep.at)
         new_state.time = next_time          # not the sum of the substeps' roundings
         # The new topology's sparsity pattern is built by its first solve; it
-        # is LOD bookkeeping, not solving.
-        lod_ms += self.solver.take_pattern_ms()
+        # is LOD bookkeeping, not solving (a uniform mesh builds it once, at set-up).
+        pattern_ms = self.solver.take_pattern_ms()
+        if self.hierarchy is not None:
+            lod_ms += pattern_ms
         self.contacts = contacts
         self._contacts_version = self.hierarchy.version if self.hierarchy is not None else 0
         if not (np.isfinite(report.residual)
