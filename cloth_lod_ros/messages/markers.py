@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..sim.contact import quaternion_from_z
+
 __all__ = ["MarkerSpec", "serialize_marker_array", "marker_array_message",
            "cloth_markers", "obstacle_markers", "level_colours", "unique_edges",
            "surface_shade", "surface_levels",
@@ -264,16 +266,6 @@ def cloth_markers(positions: np.ndarray, triangles: np.ndarray, levels: np.ndarr
     return specs
 
 
-def _quaternion_from_z(axis: np.ndarray) -> np.ndarray:
-    """Unit quaternion [x, y, z, w] turning +z onto ``axis``."""
-    a = np.asarray(axis, float) / np.linalg.norm(axis)
-    w = 1.0 + a[2]
-    if w < 1e-12:                                   # axis = -z: half turn about x
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    q = np.array([-a[1], a[0], 0.0, w])
-    return q / np.linalg.norm(q)
-
-
 def obstacle_markers(obstacles, frame_id: str, stamp: tuple = (0, 0),
                      first_id: int = 10) -> list[MarkerSpec]:
     """One marker per obstacle config (:class:`~cloth_lod_ros.sim.config.ObstacleConfig`;
@@ -288,7 +280,7 @@ def obstacle_markers(obstacles, frame_id: str, stamp: tuple = (0, 0),
     for k, o in enumerate(obstacles):
         centre = np.asarray(o.centre, float)
         if o.type == "plane":
-            q = _quaternion_from_z(o.normal)
+            q = quaternion_from_z(o.normal)
             normal = np.asarray(o.normal, float) / np.linalg.norm(o.normal)
             spec = MarkerSpec(o.name, first_id + k, CUBE, frame_id, stamp,
                               position=centre - 0.005 * normal, orientation=q,
@@ -298,7 +290,7 @@ def obstacle_markers(obstacles, frame_id: str, stamp: tuple = (0, 0),
                               scale=np.full(3, 2 * o.radius), color=grey)
         elif o.type in ("cylinder", "disc"):
             spec = MarkerSpec(o.name, first_id + k, CYLINDER, frame_id, stamp,
-                              position=centre, orientation=_quaternion_from_z(o.axis),
+                              position=centre, orientation=quaternion_from_z(o.axis),
                               scale=np.array([2 * o.radius, 2 * o.radius, 2 * o.half_height]),
                               color=grey)
         else:                                       # box
