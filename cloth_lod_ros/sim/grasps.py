@@ -25,6 +25,25 @@ __all__ = ["Grasp"]
 log = logging.getLogger(__name__)
 
 
+def checked_pose(position, orientation, what: str) -> tuple[np.ndarray, Rotation | None]:
+    """A commanded pose as ``(position (3,) m, Rotation or None)``, checked:
+    three finite numbers and, if given, a finite non-zero quaternion
+    ``[x, y, z, w]`` (normalised).  ``what`` names the commanded thing.
+
+    Raises:
+        ValueError: non-finite or malformed values.
+    """
+    position = np.asarray(position, dtype=float)
+    if position.shape != (3,) or not np.all(np.isfinite(position)):
+        raise ValueError(f"{what} target must be 3 finite numbers, got {position!r}")
+    if orientation is None:
+        return position, None
+    q = np.asarray(orientation, dtype=float)
+    if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
+        raise ValueError(f"{what} orientation must be a quaternion [x, y, z, w], got {q!r}")
+    return position, Rotation.from_quat(q / np.linalg.norm(q))
+
+
 @dataclass
 class Grasp:
     """Run-time state of one grasp.
@@ -108,15 +127,7 @@ class Grasp:
         Raises:
             ValueError: non-finite or malformed values (the old target stays).
         """
-        position = np.asarray(position, dtype=float)
-        if position.shape != (3,) or not np.all(np.isfinite(position)):
-            raise ValueError(f"grasp target must be 3 finite numbers, got {position!r}")
-        rotation = None
-        if orientation is not None:
-            q = np.asarray(orientation, dtype=float)
-            if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
-                raise ValueError(f"grasp orientation must be a quaternion [x, y, z, w], got {q!r}")
-            rotation = Rotation.from_quat(q / np.linalg.norm(q))
+        position, rotation = checked_pose(position, orientation, "grasp")
         self.waypoints = np.zeros((0, 4))            # a live command replaces the script
         self.command_position = position.copy()
         self.holding_in_place = False

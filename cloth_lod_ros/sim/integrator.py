@@ -125,6 +125,7 @@ class ImplicitStageSolver:
                                    solver_config.max_iterations, geometry)
         self._pattern: SparsePattern | None = None
         self.pattern_ms = 0.0
+        self._graded = False
         self._uv: np.ndarray | None = None
         self._warm: dict = {}
         self._evaluated = None
@@ -151,7 +152,7 @@ class ImplicitStageSolver:
         self._pattern = SparsePattern(elements.vertex_count,
                                       [elements.triangles, elements.hinge_vertices])
         self.backend.reset_topology(self._pattern, self._uv,
-                                    graded=getattr(self, "_graded", False))
+                                    graded=self._graded)
         self.pattern_ms += 1e3 * (_time.perf_counter() - start)
 
     def take_pattern_ms(self) -> float:

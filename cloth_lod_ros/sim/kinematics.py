@@ -35,6 +35,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from .contact import Obstacle, make_obstacle
+from .grasps import checked_pose
 
 __all__ = ["ObstacleMotion", "ObstacleSweep", "ObstacleInputs"]
 
@@ -95,16 +96,7 @@ class ObstacleMotion:
         Raises:
             ValueError: non-finite or malformed values (the old target stays).
         """
-        position = np.asarray(position, dtype=float)
-        if position.shape != (3,) or not np.all(np.isfinite(position)):
-            raise ValueError(f"obstacle target must be 3 finite numbers, got {position!r}")
-        rotation = None
-        if orientation is not None:
-            q = np.asarray(orientation, dtype=float)
-            if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
-                raise ValueError("obstacle orientation must be a quaternion [x, y, z, w], "
-                                 f"got {q!r}")
-            rotation = Rotation.from_quat(q / np.linalg.norm(q))
+        position, rotation = checked_pose(position, orientation, "obstacle")
         self.waypoints = np.zeros((0, 4))
         self.command_position = position.copy()
         if rotation is not None:

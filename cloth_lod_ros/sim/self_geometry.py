@@ -278,19 +278,13 @@ def vf_crossing(x0: np.ndarray, x1: np.ndarray, verts: np.ndarray, tris: np.ndar
     dp, da, db, dc = (x1[verts] - p0, x1[tris[:, 0]] - a0, x1[tris[:, 1]] - b0,
                       x1[tris[:, 2]] - c0)
     roots = _roots01(_cubic(b0 - a0, db - da, c0 - a0, dc - da, p0 - a0, dp - da))
-    hit = np.zeros(len(verts), dtype=bool)
-    for j in range(3):
-        t = roots[:, j]
-        ok = ~np.isnan(t)
-        if not ok.any():
-            continue
-        tt = t[ok, None]
+
+    def gap(ok, tt):
         p, a, b, c = (p0[ok] + tt * dp[ok], a0[ok] + tt * da[ok], b0[ok] + tt * db[ok],
                       c0[ok] + tt * dc[ok])
         w = point_triangle(p, a, b, c)
-        q = w[:, :1] * a + w[:, 1:2] * b + w[:, 2:] * c
-        hit[np.flatnonzero(ok)[np.linalg.norm(p - q, axis=1) <= eta]] = True
-    return hit
+        return p - (w[:, :1] * a + w[:, 1:2] * b + w[:, 2:] * c)
+    return _meets_at_roots(roots, gap, eta)
 
 
 def ee_crossing(x0: np.ndarray, x1: np.ndarray, e1: np.ndarray, e2: np.ndarray,
@@ -303,16 +297,24 @@ def ee_crossing(x0: np.ndarray, x1: np.ndarray, e1: np.ndarray, e2: np.ndarray,
     dp, dq, dr, ds = (x1[e1[:, 0]] - p0, x1[e1[:, 1]] - q0, x1[e2[:, 0]] - r0,
                       x1[e2[:, 1]] - s0)
     roots = _roots01(_cubic(q0 - p0, dq - dp, s0 - r0, ds - dr, r0 - p0, dr - dp))
-    hit = np.zeros(len(e1), dtype=bool)
-    for j in range(3):
-        t = roots[:, j]
-        ok = ~np.isnan(t)
-        if not ok.any():
-            continue
-        tt = t[ok, None]
+
+    def gap(ok, tt):
         p, q, r, s = (p0[ok] + tt * dp[ok], q0[ok] + tt * dq[ok], r0[ok] + tt * dr[ok],
                       s0[ok] + tt * ds[ok])
         u, v = segment_segment(p, q, r, s)
-        gap = (p + u[:, None] * (q - p)) - (r + v[:, None] * (s - r))
-        hit[np.flatnonzero(ok)[np.linalg.norm(gap, axis=1) <= eta]] = True
+        return (p + u[:, None] * (q - p)) - (r + v[:, None] * (s - r))
+    return _meets_at_roots(roots, gap, eta)
+
+
+def _meets_at_roots(roots: np.ndarray, gap, eta: float) -> np.ndarray:
+    """``(k,)`` bool: a pair meets if, at one of its coplanarity times ``roots``
+    ``(k, 3)`` (NaN: none), the closest points are within ``eta`` m.  ``gap(ok,
+    t)`` gives the ``(m, 3)`` vector between the closest points of the pairs
+    selected by ``ok`` at their times ``t`` ``(m, 1)``."""
+    hit = np.zeros(len(roots), dtype=bool)
+    for j in range(3):                      # the cubic's (up to) three roots in [0, 1]
+        t = roots[:, j]
+        ok = ~np.isnan(t)
+        if ok.any():
+            hit[np.flatnonzero(ok)[np.linalg.norm(gap(ok, t[ok, None]), axis=1) <= eta]] = True
     return hit
