@@ -300,3 +300,32 @@ def test_solver_comparison_runs_every_backend_on_the_same_steps(tmp_path):
         assert row["ratio_to_pcg"] > 0
         if row["backend"] != "auto":
             assert row["solver"] == row["backend"]
+
+
+def test_scene_table_times_every_case_and_pairs_self_collision_with_its_base(tmp_path):
+    """``bench --scenes --quick``: one row per case with consistent shares; the
+    self-collision case is compared with the same scene without it, and only
+    it spends time on self-collision."""
+    assert bench.main(["--scenes", "--quick", "--repeats", "1", "--quiet",
+                       "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "scenes.json").read_text())
+    from cloth_lod_ros.tools.bench.scenes import QUICK_SCENE_CASES
+    assert [r["case"] for r in data["rows"]] == [c.label for c in QUICK_SCENE_CASES]
+    assert (tmp_path / "scenes.md").read_text().count("\n| ") == len(data["rows"]) + 1
+    for row, case in zip(data["rows"], QUICK_SCENE_CASES):
+        assert row["unconverged_steps"] == 0
+        assert row["solves_per_frame"] >= 1 and row["substeps_per_frame"] >= 1
+        shares = [row[k] for k in ("lod_share", "force_share", "solve_share",
+                                   "self_collision_share")]
+        assert all(0.0 <= s <= 1.0 for s in shares) and sum(shares) <= 1.0 + 1e-9
+        assert row["real_time_factor"] == pytest.approx(
+            1e3 * row["frame_period_s"] / row["ms_per_frame"])
+        if case.scene == "hang_two_corners":          # its scene file leaves it off
+            enabled = "self_collision.enabled=true" in case.overrides
+            assert (row["self_collision_share"] > 0.0) == enabled
+        if case.vs is None:
+            assert row["ratio_to_vs"] is None
+        else:
+            base = next(r for r in data["rows"] if r["case"] == case.vs)
+            assert row["ratio_to_vs"] == pytest.approx(row["ms_per_frame"]
+                                                       / base["ms_per_frame"])

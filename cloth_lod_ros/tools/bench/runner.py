@@ -180,6 +180,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="compare the linear-solver backends instead (uniform L4-L8, the "
                              "adaptive default, grasp_lift with LOD on and off; quick: two "
                              "small cases); writes solvers.json and solvers.md")
+    parser.add_argument("--scenes", action="store_true",
+                        help="time every built-in scene instead (LOD on and off, "
+                             "self-collision's cost where the cloth never meets itself; "
+                             "quick: three small cases); writes scenes.json and scenes.md")
     parser.add_argument("--from-json", metavar="BENCH_JSON",
                         help="run nothing: rewrite the CSV, plot and summary of a finished "
                              "run from its bench.json (into --out, default beside it)")
@@ -311,6 +315,16 @@ def run(args) -> int:
             print(f"cloth-lod bench: {exc}", file=sys.stderr)
             return 3
         say(f"wrote {Path(args.out) / 'solvers.md'} ({result['minutes']:.1f} min)")
+        return 0
+    if getattr(args, "scenes", False):
+        from .scenes import run_scenes
+        try:
+            result = run_scenes(Path(args.out), repeats=args.repeats or 3, quick=args.quick,
+                                cpu=args.cpu, progress=say)
+        except BenchError as exc:
+            print(f"cloth-lod bench: {exc}", file=sys.stderr)
+            return 3
+        say(f"wrote {Path(args.out) / 'scenes.md'} ({result['minutes']:.1f} min)")
         return 0
     try:
         _resolve(args)
