@@ -179,3 +179,23 @@ def test_material_grid_is_row_major_in_v_then_u_and_spans_the_cloth():
     np.testing.assert_array_equal(grid[0, :, 0], [0.0, 1.0, 2.0])
     np.testing.assert_array_equal(grid[:, 0, 1], [0.0, 0.5, 1.0])
     np.testing.assert_array_equal(grid[2, 2], [2.0, 1.0])
+
+
+def test_repeated_queries_follow_the_positions_and_the_points():
+    """The located triangles of the last query are kept: sampling the same
+    points again follows new positions exactly, a query mutated in place or
+    with other points is located anew."""
+    mesh, loc = make("odd", 4)
+    rng = np.random.default_rng(3)
+    points = rng.uniform([0.0, 0.0], [0.3, 0.7], size=(25, 2))
+    fresh = PointLocator(mesh.uv, mesh.triangles, 0.3, 0.7)
+    for seed in range(3):
+        x = random_positions(mesh.vertex_count, seed=seed)
+        np.testing.assert_array_equal(loc.sample(x, points), fresh.sample(x, points.copy()))
+        fresh = PointLocator(mesh.uv, mesh.triangles, 0.3, 0.7)
+    x = random_positions(mesh.vertex_count)
+    points[0] = (0.01, 0.02)                       # the caller's array, changed in place
+    other = rng.uniform([0.0, 0.0], [0.3, 0.7], size=(7, 2))
+    for query in (points, other):
+        expected = PointLocator(mesh.uv, mesh.triangles, 0.3, 0.7).sample(x, query)
+        np.testing.assert_array_equal(loc.sample(x, query), expected)

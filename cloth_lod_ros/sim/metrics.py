@@ -43,6 +43,7 @@ class PointLocator:
         self._tree = cKDTree(corners.mean(axis=1))
         self._k = min(candidates, len(triangles))
         self._tol = 1e-9 * max(width, height)
+        self._last_query = None
 
     def _barycentric(self, points: np.ndarray, tri: np.ndarray) -> np.ndarray:
         local = np.einsum("...ab,...b->...a", self._inverse[tri], points - self._origin[tri])
@@ -80,8 +81,20 @@ class PointLocator:
         return tri, found_bary
 
     def sample(self, positions: np.ndarray, points) -> np.ndarray:
-        """3-D positions ``(m, 3)`` of material points on a cloth at ``positions``."""
-        tri, bary = self.locate(points)
+        """3-D positions ``(m, 3)`` of material points on a cloth at ``positions``.
+
+        The last query's triangles and barycentrics are kept: the same points
+        are sampled at every published frame (``cloth/grid``), and the rest
+        mesh - so where they lie - changes only with the topology, when a new
+        locator is made."""
+        points = np.asarray(points, dtype=float)
+        kept = self._last_query
+        if kept is not None and kept[0].shape == points.shape and np.array_equal(kept[0],
+                                                                                 points):
+            tri, bary = kept[1], kept[2]
+        else:
+            tri, bary = self.locate(points)
+            self._last_query = (points.copy(), tri, bary)
         return np.einsum("mk,mkd->md", bary, positions[self.triangles[tri]])
 
 
