@@ -37,6 +37,10 @@ setup(
     extras_require={
         "ros": ROS_WHEELS + BAG,
         "test": ROS_WHEELS + BAG + BAG_READERS + ["pytest>=7", "hypothesis>=6"],
+        # Optional: CHOLMOD's supernodal Cholesky for solver.method cholmod/auto
+        # (about 0.4x QDLDL's factorisation).  cvxopt is GPL-3.0: not installed
+        # by default.
+        "cholmod": ["cvxopt>=1.3"],
     },
     zip_safe=True,
     maintainer="cloth_lod_ros maintainers",

@@ -146,11 +146,16 @@ def _coarse_points(p, fine):
     return np.linalg.lstsq(p.toarray(), fine, rcond=None)[0]
 
 
+def _factorisation() -> str:
+    """What ``auto`` factorises with: CHOLMOD if installed, else QDLDL, else PCG."""
+    available = solvers.available_methods()
+    return next((m for m in ("cholmod", "direct") if m in available), "pcg")
+
+
 def test_auto_factorises_small_systems_and_uses_multigrid_on_large_ones():
     small = ClothSim.from_scene("hang_two_corners")                       # adaptive, ~200 particles
     large = ClothSim.from_scene("hang_two_corners", ["lod.enabled=false", "cloth.level=6"])
-    expected_small = "direct" if "direct" in solvers.available_methods() else "pcg"
-    assert small.step().solver == expected_small
+    assert small.step().solver == _factorisation()
     assert large.step().solver == "multigrid"
 
 
@@ -180,7 +185,7 @@ def test_every_solve_of_a_step_is_counted_and_timed(monkeypatch):
     assert several > 0
 
 
-@pytest.mark.parametrize("method", ["pcg", "multigrid", "direct", "superlu"])
+@pytest.mark.parametrize("method", ["pcg", "multigrid", "direct", "cholmod", "superlu"])
 def test_backends_agree_over_a_run_within_the_tolerance(method):
     """The same steps with each backend: trajectories within what the solver
     tolerance allows (1e-4 relative: sub-millimetre over a short swing)."""
@@ -213,8 +218,52 @@ def test_auto_factorises_larger_graded_meshes_than_uniform_ones():
     assert AUTO_DIRECT_LIMIT < bigger.vertex_count <= AUTO_DIRECT_LIMIT_GRADED
     auto = make_solver("auto", 1e-6, 1000, geometry=(1.0, 1.0, 0.25))
     auto.reset_topology(pattern, mesh.uv)
-    assert auto.name == "direct"
+    assert auto.name == _factorisation()
     auto.reset_topology(big_pattern, bigger.uv)
     assert auto.name == "multigrid"
     auto.reset_topology(big_pattern, bigger.uv, graded=True)
-    assert auto.name == "direct"
+    assert auto.name == _factorisation()
+
+
+def test_cholmod_factorises_the_same_system_as_qdldl_and_refuses_politely_when_absent(
+        monkeypatch):
+    """The optional CHOLMOD backend gives QDLDL's solution (same projected
+    system, pins exact) and keeps its analysis while the topology stands;
+    without cvxopt, asking for it is a clear configuration error."""
+    if "cholmod" in solvers.available_methods() and "direct" in solvers.available_methods():
+        sim = ClothSim.from_scene("grasp_lift", ["cloth.level=3", "solver.method=cholmod"])
+        systems = []
+        backend = sim.solver.backend
+        real = backend.solve
+        monkeypatch.setattr(backend, "solve",
+                            lambda *a: systems.append(a) or real(*a))
+        for _ in range(20):
+            sim.step()
+        qdldl = make_solver("direct", 1e-8, 100)
+        analyses = []
+        cholmod = solvers._cholmod_modules()[1]
+        symbolic = cholmod.symbolic
+        monkeypatch.setattr(cholmod, "symbolic", lambda *a, **k: analyses.append(1)
+                            or symbolic(*a, **k))
+        other = make_solver("cholmod", 1e-8, 100)
+        qdldl.reset_topology(sim.solver._pattern, None)
+        other.reset_topology(sim.solver._pattern, None)
+        checked = 0
+        for matrix, rhs, constraints, _ in systems[-6:]:
+            if matrix.shape[0] != 3 * sim.solver._pattern.vertex_count:
+                continue                   # an earlier topology
+            a = qdldl.solve(matrix, rhs, constraints, None)
+            b = other.solve(matrix, rhs, constraints, None)
+            assert b.converged and b.residual < 1e-10
+            np.testing.assert_allclose(b.dv, a.dv, rtol=0, atol=1e-10 * np.abs(a.dv).max())
+            held = constraints.indices
+            np.testing.assert_allclose(
+                np.einsum("kab,kb->ka", np.eye(3) - constraints.projectors, b.dv[held]),
+                np.einsum("kab,kb->ka", np.eye(3) - constraints.projectors,
+                          constraints.prescribed), atol=1e-12)
+            checked += 1
+        assert checked >= 1 and analyses == [1]
+    monkeypatch.setattr(solvers, "_CHOLMOD", ())
+    assert "cholmod" not in solvers.available_methods()
+    with pytest.raises(ValueError, match="cvxopt"):
+        make_solver("cholmod", 1e-4, 100)

@@ -15,14 +15,21 @@ the same measure for all of them, ``|S(b − A Δv)| / |S b|``:
   the symbolic analysis (ordering, elimination tree) is done once per topology
   and each solve - contact and friction re-solves included - refactors only
   the numbers.
+* ``cholmod`` - the same as ``direct`` with CHOLMOD's supernodal Cholesky
+  (through cvxopt, an optional extra: ``pip install .[cholmod]``; GPL-3.0),
+  single-threaded: 0.4x QDLDL's numeric factorisation on the scenes'
+  systems.
 * ``superlu`` - scipy's SuperLU on the same projected system, re-analysed every
   solve: the earlier direct baseline.
-* ``auto`` (the default) - ``direct`` on small systems (adaptive meshes, contact
-  scenes at moderate levels), ``multigrid`` on large ones; ``pcg`` where QDLDL is
-  not installed.  :attr:`LinearSolver.name` says what ran.
+* ``auto`` (the default) - a direct factorisation on small systems (adaptive
+  meshes, contact scenes at moderate levels): ``cholmod`` if installed, else
+  ``direct``; ``multigrid`` on large ones; ``pcg`` where neither is installed.
+  :attr:`LinearSolver.name` says what ran.
 """
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 import scipy.sparse as sp
@@ -33,7 +40,7 @@ from .multigrid import VCycle, block_transfers, lattice_hierarchy
 
 __all__ = ["LinearSolver", "make_solver", "METHODS", "available_methods"]
 
-METHODS = ("auto", "pcg", "multigrid", "direct", "superlu")
+METHODS = ("auto", "pcg", "multigrid", "direct", "cholmod", "superlu")
 #: ``auto`` factorises up to this many particles and uses multigrid above, on
 #: uniform meshes (uniform L6, 1,089 particles: multigrid 0.71x pcg, LDLT 0.79x) ...
 AUTO_DIRECT_LIMIT = 700
@@ -48,8 +55,36 @@ except ImportError:                    # pragma: no cover - installed with the p
     _qdldl = None
 
 
+_CHOLMOD: tuple | None = None
+
+
+def _cholmod_modules():
+    """``(cvxopt, cvxopt.cholmod)``, or None when cvxopt is not installed.
+
+    cvxopt ships its own OpenBLAS, which reads its thread count when it is
+    loaded: it is loaded with one thread (unless the caller set
+    OPENBLAS_NUM_THREADS), because its threads spin between the small dense
+    blocks of each factorisation - on two cores twice the CPU and a slower
+    factorisation than QDLDL's."""
+    global _CHOLMOD
+    if _CHOLMOD is None:
+        saved = os.environ.get("OPENBLAS_NUM_THREADS")
+        os.environ["OPENBLAS_NUM_THREADS"] = saved or "1"
+        try:
+            import cvxopt
+            import cvxopt.cholmod as cholmod
+            _CHOLMOD = (cvxopt, cholmod)
+        except ImportError:
+            _CHOLMOD = ()
+        finally:
+            if saved is None:
+                del os.environ["OPENBLAS_NUM_THREADS"]
+    return _CHOLMOD or None
+
+
 def available_methods() -> tuple[str, ...]:
-    return tuple(m for m in METHODS if m != "direct" or _qdldl is not None)
+    return tuple(m for m in METHODS if (m != "direct" or _qdldl is not None)
+                 and (m != "cholmod" or _cholmod_modules() is not None))
 
 
 class LinearSolver:
@@ -147,8 +182,18 @@ class LdlDirect(LinearSolver):
         if self._upper is None:
             self._upper = self._upper_layout(projected)
         order, indices, indptr = self._upper
-        upper = sp.csc_matrix((projected.data.ravel()[order], indices, indptr),
-                              shape=projected.shape)
+        self._numeric(projected.data.ravel()[order], indices, indptr, projected.shape)
+        y = self._backsolve(b.ravel()).reshape(-1, 3)
+        dv = z + constraints.filter(y)
+        rel = relative_residual(matrix, rhs, constraints, dv)
+        return SolveResult(dv=dv, iterations=0, residual=rel,
+                           converged=bool(np.isfinite(rel) and rel <= max(self.tolerance,
+                                                                          1e-8)))
+
+    def _numeric(self, upper_data, indices, indptr, shape) -> None:
+        """Factorise the projected system given by its upper triangle in CSC
+        order (``upper_data`` on the pattern ``indices``/``indptr``)."""
+        upper = sp.csc_matrix((upper_data, indices, indptr), shape=shape)
         try:
             if self._factor is None:
                 self._factor = _qdldl.Solver(upper, upper=True)     # ordering + analysis
@@ -157,12 +202,48 @@ class LdlDirect(LinearSolver):
         except RuntimeError as exc:         # QDLDL: not quasi-definite (absurd inputs)
             self._factor = None
             raise np.linalg.LinAlgError(f"LDLT factorisation failed: {exc}") from exc
-        y = self._factor.solve(b.ravel()).reshape(-1, 3)
-        dv = z + constraints.filter(y)
-        rel = relative_residual(matrix, rhs, constraints, dv)
-        return SolveResult(dv=dv, iterations=0, residual=rel,
-                           converged=bool(np.isfinite(rel) and rel <= max(self.tolerance,
-                                                                          1e-8)))
+
+    def _backsolve(self, b: np.ndarray) -> np.ndarray:
+        return self._factor.solve(b)
+
+
+class CholmodDirect(LdlDirect):
+    """CHOLMOD's supernodal Cholesky of the projected system (optional, cvxopt):
+    the symbolic analysis once per topology, a numeric factorisation per solve."""
+
+    name = "cholmod"
+
+    def _numeric(self, upper_data, indices, indptr, shape) -> None:
+        cvxopt, cholmod = _cholmod_modules()
+        values = cvxopt.matrix(np.ascontiguousarray(upper_data, dtype=float))
+        if self._factor is None:
+            columns = np.repeat(np.arange(shape[1], dtype=np.int64), np.diff(indptr))
+            self._system = cvxopt.spmatrix(values, cvxopt.matrix(indices.astype(np.int64)),
+                                           cvxopt.matrix(columns), size=shape)
+            if self._system.V.size[0] != len(upper_data):
+                raise RuntimeError("cvxopt changed the sparsity pattern")   # a defect
+            saved = cholmod.options.get("supernodal")
+            cholmod.options["supernodal"] = 2            # always supernodal
+            try:
+                self._factor = cholmod.symbolic(self._system, uplo="U")
+            finally:
+                if saved is None:
+                    del cholmod.options["supernodal"]
+                else:
+                    cholmod.options["supernodal"] = saved
+        else:
+            self._system.V = values                       # same pattern, new numbers
+        try:
+            cholmod.numeric(self._system, self._factor)
+        except ArithmeticError as exc:       # not positive definite (absurd inputs)
+            self._factor = None
+            raise np.linalg.LinAlgError(f"Cholesky factorisation failed: {exc}") from exc
+
+    def _backsolve(self, b: np.ndarray) -> np.ndarray:
+        cvxopt, cholmod = _cholmod_modules()
+        x = cvxopt.matrix(np.ascontiguousarray(b, dtype=float))
+        cholmod.solve(self._factor, x)
+        return np.frombuffer(x, dtype=float).copy()
 
 
 class Multigrid(LinearSolver):
@@ -233,7 +314,8 @@ class Auto(LinearSolver):
 
     def __init__(self, tolerance, max_iterations, geometry=None):
         super().__init__(tolerance, max_iterations, geometry)
-        direct = LdlDirect if _qdldl is not None else BlockJacobiPcg
+        direct = (CholmodDirect if _cholmod_modules() is not None
+                  else LdlDirect if _qdldl is not None else BlockJacobiPcg)
         self._small = direct(tolerance, max_iterations, geometry)
         self._large = Multigrid(tolerance, max_iterations, geometry)
         self._current: LinearSolver = self._small
@@ -261,9 +343,12 @@ def make_solver(method: str, tolerance: float, max_iterations: int,
         ValueError: unknown method, or ``direct`` without QDLDL installed.
     """
     classes = {"auto": Auto, "pcg": BlockJacobiPcg, "multigrid": Multigrid,
-               "direct": LdlDirect, "superlu": SuperLu}
+               "direct": LdlDirect, "cholmod": CholmodDirect, "superlu": SuperLu}
     if method not in classes:
         raise ValueError(f"unknown solver method {method!r}; one of {', '.join(METHODS)}")
     if method == "direct" and _qdldl is None:
         raise ValueError("solver.method 'direct' needs the qdldl package (pip install qdldl)")
+    if method == "cholmod" and _cholmod_modules() is None:
+        raise ValueError("solver.method 'cholmod' needs cvxopt (pip install '.[cholmod]'; "
+                         "GPL-3.0)")
     return classes[method](tolerance, max_iterations, geometry)
