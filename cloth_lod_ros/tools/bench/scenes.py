@@ -10,8 +10,9 @@ bookkeeping, forces and assembly, linear solves and self-collision, solves
 and integrator steps per frame, mean triangles; and for a case measured
 against another (``vs``), the ratio of their times - how much enabling
 self-collision costs a scene without self-contact, measured on the same
-frames in the same run.  Writes ``scenes.json`` and ``scenes.md`` in
-``--out``.  Speed only: the error against the converged motion is what the
+frames in the same run (and the optional ``cholmod`` backend's cases,
+where it is installed, against the default's).  Writes ``scenes.json`` and
+``scenes.md`` in ``--out``.  Speed only: the error against the converged motion is what the
 default mode measures (contact scenes are too sensitive to small changes
 for a converged reference to mean much: see the README).
 """
@@ -32,6 +33,8 @@ __all__ = ["SceneCase", "SCENE_CASES", "QUICK_SCENE_CASES", "run_scenes", "markd
 
 SELF = "self_collision.enabled=true"
 LOD_OFF = "lod.enabled=false"
+#: The optional backend: its cases run only where it is installed.
+CHOLMOD = "solver.method=cholmod"
 
 
 @dataclass(frozen=True)
@@ -54,7 +57,10 @@ SCENE_CASES = (
     SceneCase("hang_two_corners, LOD off", "hang_two_corners", [LOD_OFF], 3.0),
     SceneCase("hang_two_corners, LOD off, self-collision on", "hang_two_corners",
               [LOD_OFF, SELF], 3.0, vs="hang_two_corners, LOD off"),
+    SceneCase("hang_two_corners, cholmod", "hang_two_corners", [CHOLMOD], 3.0,
+              vs="hang_two_corners"),
     SceneCase("grasp_lift", "grasp_lift", [], 3.0),
+    SceneCase("grasp_lift, cholmod", "grasp_lift", [CHOLMOD], 3.0, vs="grasp_lift"),
     SceneCase("grasp_lift, LOD off", "grasp_lift", [LOD_OFF], 3.0),
     SceneCase("grasp_lift, LOD off, self-collision on", "grasp_lift", [LOD_OFF, SELF], 3.0,
               vs="grasp_lift, LOD off"),
@@ -80,7 +86,10 @@ def run_scenes(out: Path, repeats: int = 3, quick: bool = False, cpu: int | None
                cases=None, progress=print) -> dict:
     """Run every case ``repeats`` times in rounds; write and return the table."""
     from .runner import _run_worker        # the pinned single-thread worker launcher
+    from ...sim.solvers import available_methods
     cases = cases or (QUICK_SCENE_CASES if quick else SCENE_CASES)
+    if "cholmod" not in available_methods():
+        cases = [c for c in cases if CHOLMOD not in c.overrides]
     labels = [c.label for c in cases]
     for case in cases:
         if case.vs is not None and case.vs not in labels:
