@@ -9,8 +9,8 @@ from cloth_lod_ros.sim import ClothSim
 from cloth_lod_ros.sim import self_contact as self_contact_module
 from cloth_lod_ros.sim.config import SceneError, load_scene, scene_from_dict, scene_to_dict
 from cloth_lod_ros.sim.self_contact import SelfCollision
-from cloth_lod_ros.sim.self_geometry import (box_pairs, ee_crossing, point_triangle,
-                                             segment_segment, vf_crossing)
+from cloth_lod_ros.sim.self_geometry import (box_pairs, ee_crossing, layered_boxes,
+                                             point_triangle, segment_segment, vf_crossing)
 from cloth_lod_ros.tools.stress.intersect import intersecting_pairs
 
 THICKNESS = 0.004
@@ -49,6 +49,75 @@ def test_box_pairs_are_exactly_the_overlapping_boxes():
     ia, ib = box_pairs(lo, hi)
     overlap = np.triu(np.all((lo[:, None] <= hi[None]) & (lo[None] <= hi[:, None]), axis=2), 1)
     assert set(zip(ia.tolist(), ib.tolist())) == set(zip(*np.nonzero(overlap)))
+    # Few boxes take the all-pairs path: the same answer, in the same order.
+    for k_a, k_b in ((40, 25), (60, None)):
+        lo, lo2 = RNG.uniform(0.0, 1.0, (k_a, 3)), RNG.uniform(0.0, 1.0, (k_b or k_a, 3))
+        hi, hi2 = lo + RNG.uniform(0.0, 0.3, lo.shape), lo2 + 0.2
+        if k_b is None:
+            lo2, hi2 = lo, hi
+        overlap = np.all((lo[:, None] <= hi2[None]) & (lo2[None] <= hi[:, None]), axis=2)
+        ia, ib = box_pairs(lo, hi) if k_b is None else box_pairs(lo, hi, lo2, hi2)
+        expected = np.nonzero(np.triu(overlap, 1) if k_b is None else overlap)
+        assert len(ia) and ia.tolist() == expected[0].tolist() and ib.tolist() == expected[1].tolist()
+
+
+def _layered_by_cells(lo, hi, uv_lo, uv_hi, pad, normals):
+    """The test of :func:`layered_boxes` as its docstring states it, cell by cell."""
+    cell = 1.5 * max(float(np.median((hi - lo).max(axis=1))), 1e-9)
+    origin = lo.min(axis=0)
+    first = np.floor((lo - origin) / cell).astype(int)
+    last = np.floor((hi - origin) / cell).astype(int)
+    members = {}
+    for b in range(len(lo)):
+        for i in range(first[b, 0], last[b, 0] + 1):
+            for j in range(first[b, 1], last[b, 1] + 1):
+                for k in range(first[b, 2], last[b, 2] + 1):
+                    members.setdefault((i, j, k), []).append(b)
+    far = 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad)
+    out = np.zeros(len(lo), bool)
+    for ids in members.values():
+        spread = max(uv_lo[ids, d].max() - uv_hi[ids, d].min() for d in (0, 1))
+        mean = normals[ids].mean(axis=0)
+        if spread > far or (normals[ids] @ mean).min() < 0.0:
+            out[ids] = True
+    return out
+
+
+def test_layered_boxes_match_a_cell_by_cell_search():
+    """Flat, folded and torn grids of triangles (a particle pulled 0.5 m away:
+    boxes spanning many cells; half the boxes 30 m away: a sparse grid): the
+    vectorised test flags exactly the boxes of the cells that the plain search
+    flags."""
+    n = 12
+    g = np.linspace(0.0, 0.6, n + 1)
+    u, v = (a.ravel() for a in np.meshgrid(g, g))
+    uv = np.column_stack([u, v])
+    corner = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    tris = np.concatenate([np.column_stack([corner, corner + 1, corner + n + 2]),
+                           np.column_stack([corner, corner + n + 2, corner + n + 1])])
+    uv_corners = uv[tris]
+    flagged = []
+    for trial in range(16):
+        x = np.column_stack([u, v, np.zeros_like(u)]) + RNG.normal(0.0, 0.004, (len(u), 3))
+        if trial % 4 == 1:                      # folded back over itself
+            cut = RNG.uniform(0.2, 0.4)
+            fold = u > cut
+            x[fold, 0] = 2 * cut - x[fold, 0]
+            x[fold, 2] += RNG.uniform(0.005, 0.05)
+        elif trial % 4 == 2:
+            x[RNG.integers(len(x))] += RNG.normal(0.0, 0.3, 3)
+        corners = x[tris]
+        lo, hi = corners.min(axis=1) - 0.008, corners.max(axis=1) + 0.008
+        if trial % 4 == 3:
+            lo[::2] += 30.0
+            hi[::2] += 30.0
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normals /= np.linalg.norm(normals, axis=1)[:, None]
+        args = (lo, hi, uv_corners.min(axis=1), uv_corners.max(axis=1), 0.02, normals)
+        out = layered_boxes(*args)
+        assert np.array_equal(out, _layered_by_cells(*args))
+        flagged.append(out.any())
+    assert any(flagged) and not all(flagged)
 
 
 def test_a_vertex_through_a_triangle_is_caught_and_one_passing_beside_it_is_not():
@@ -113,6 +182,71 @@ def test_an_edge_edge_crossing_is_caught():
     assert edge_pairs & {((0, 1), (3, 4)), ((3, 4), (0, 1))}
     # The pair's side is the start's: B's edge was below A's.
     assert np.all(np.abs(found.normal[:, 2]) > 0.9)
+
+
+def _two_patches(height):
+    """Two flat 0.2 m square patches of 32 triangles each, far apart in the
+    material (two layers), the second ``height`` m above the first and shifted
+    so that its particles lie over the first's triangles.  Returns positions
+    ``(50, 3)``, triangles, rest coordinates and the upper patch's particles."""
+    g = np.linspace(0.0, 0.2, 5)
+    u, v = (a.ravel() for a in np.meshgrid(g, g))
+    corner = (np.arange(4)[:, None] * 5 + np.arange(4)[None, :]).ravel()
+    tris = np.concatenate([np.column_stack([corner, corner + 1, corner + 6]),
+                           np.column_stack([corner, corner + 6, corner + 5])])
+    flat = np.column_stack([u, v, np.zeros_like(u)])
+    x = np.concatenate([flat, flat + [0.013, 0.017, height]])
+    uv = np.concatenate([np.column_stack([u, v]), np.column_stack([u + 10.0, v])])
+    return x, np.concatenate([tris, tris + 25]), uv, np.arange(25, 50)
+
+
+def test_a_layer_arriving_from_beyond_the_cached_margin_is_still_caught():
+    """The broad phase is reused only while the particles' boxes stay inside
+    the ones it was built for (padded by a thickness or so).  A layer that
+    comes from farther within one step - its start velocity said it would
+    not move, or it moves fast - leaves them, and the check is made again."""
+    sc = SelfCollision(scene_from_dict(_strip_scene(level=0)).self_collision)
+    x, tris, uv, upper = _two_patches(height=0.3)
+    sc.set_topology(tris, uv)
+    h, rest = 1.0 / 60.0, np.zeros_like(x)
+    assert not len(sc.proximity(x, rest, h)) and sc.counters.broad == 1
+    # Less than the margin: the certificate (no cell with two layers) holds.
+    drift = x.copy()
+    drift[upper, 2] -= 0.5 * THICKNESS
+    assert not len(sc.crossings(x, drift)) and sc.counters.broad == 1
+    # The solve took the upper layer through the lower one in one step.
+    through = x.copy()
+    through[upper, 2] = -0.05
+    found = sc.crossings(x, through)
+    assert len(found) and found.hold.all() and sc.counters.broad == 2
+    # The sides are the start's: normals from side B to side A, up when A is
+    # the upper layer.
+    a_above = np.isin(found.a[:, 0], upper)
+    assert np.all(np.where(a_above, found.normal[:, 2], -found.normal[:, 2]) > 0.9)
+    # Checked at rest, then 5 cm above and falling at 6 m/s: in contact
+    # before the step ends.
+    sc = SelfCollision(sc.config)
+    sc.set_topology(tris, uv)
+    assert not len(sc.proximity(x, rest, h)) and sc.counters.broad == 1
+    near, fall = x.copy(), rest.copy()
+    near[upper, 2], fall[upper, 2] = 0.05, -6.0
+    pairs = sc.proximity(near, fall, h)
+    assert len(pairs) and sc.counters.broad == 2 and sc.counters.with_pairs == 1
+
+
+def test_separate_builds_the_broad_phase_that_the_next_step_reuses():
+    """Given the step about to be taken, a split's separation builds its broad
+    phase over that motion, and the step's detection reuses it."""
+    x, tris, uv, _ = _two_patches(height=0.3)
+    v = np.zeros_like(x)
+    v[:, 0] = 0.5                                     # sideways, 8 mm per step
+    h = 1.0 / 60.0
+    for ahead, builds in ((True, 1), (False, 2)):
+        sc = SelfCollision(scene_from_dict(_strip_scene(level=0)).self_collision)
+        sc.set_topology(tris, uv)
+        out = sc.separate(x, np.array([3]), *((v, h) if ahead else ()))
+        assert np.array_equal(out, x)                 # nothing near: nothing moved
+        assert not len(sc.proximity(out, v, h)) and sc.counters.broad == builds
 
 
 # -- whole simulations ----------------------------------------------------------------

@@ -441,7 +441,8 @@ class ClothSim(HeldInputs, ObstacleInputs):
                     # thickness of a layer the curved cloth is wrapped on: move it
                     # out (never across anything).
                     new = np.flatnonzero(~np.isin(self.vertex_ids, old_ids))
-                    self.state.positions = sc.separate(self.state.positions, new)
+                    self.state.positions = sc.separate(self.state.positions, new,
+                                                       self.state.velocities, self.time_step)
             total_splits += splits
             total_merges += merges
             if not splits:

@@ -192,23 +192,43 @@ class SelfCollision:
         self._triangles = triangles
         self.triangles = np.asarray(triangles, dtype=np.int64)
         self._edges = None              # built when a pair search first needs them
-        corners = uv[self.triangles]
-        self.uv_lo, self.uv_hi = corners.min(axis=1), corners.max(axis=1)
+        # Each corner's column on its own: gathers of (t,) index arrays and
+        # element-wise minima instead of reductions along a (t, 3) axis,
+        # several times slower in numpy.
+        self._corners = tuple(np.ascontiguousarray(self.triangles[:, k]) for k in range(3))
+        # Stored by columns (Fortran order): the hash reads u and v apart.
+        self.uv_lo, self.uv_hi = (np.asfortranarray(b) for b in self._triangle_boxes(uv, uv))
         self._cache = None
         self.counters.ms += 1e3 * (_time.perf_counter() - start)
 
     # -- pairs ----------------------------------------------------------------
+    def _triangle_boxes(self, lo: np.ndarray, hi: np.ndarray):
+        """``(t, k)`` bounds of each triangle's corners' boxes ``lo``/``hi`` ``(n, k)``."""
+        t0, t1, t2 = self._corners
+        return (np.minimum(np.minimum(lo.take(t0, 0), lo.take(t1, 0)), lo.take(t2, 0)),
+                np.maximum(np.maximum(hi.take(t0, 0), hi.take(t1, 0)), hi.take(t2, 0)))
+
     def _normals(self, x: np.ndarray) -> np.ndarray:
         """``(t, 3)`` unit normals of the triangles at ``x`` (m)."""
-        t = self.triangles
-        n = np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]])
-        return n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+        t0, t1, t2 = self._corners
+        a = x.take(t0, 0)
+        e, f = x.take(t1, 0) - a, x.take(t2, 0) - a
+        # The cross product column by column, stored by columns (Fortran
+        # order): the hash reads the components apart.
+        n = np.empty(a.shape, order="F")
+        n[:, 0] = e[:, 1] * f[:, 2] - e[:, 2] * f[:, 1]
+        n[:, 1] = e[:, 2] * f[:, 0] - e[:, 0] * f[:, 2]
+        n[:, 2] = e[:, 0] * f[:, 1] - e[:, 1] * f[:, 0]
+        norm = np.sqrt(n[:, 0] * n[:, 0] + n[:, 1] * n[:, 1] + n[:, 2] * n[:, 2])
+        n /= np.maximum(norm, 1e-300)[:, None]
+        return n
 
     @staticmethod
     def _ee_candidates(edges, lo_e, hi_e):
         i, j = box_pairs(lo_e, hi_e)
-        e1, e2 = edges[i], edges[j]
-        keep = ~((e1[:, :1] == e2).any(axis=1) | (e1[:, 1:] == e2).any(axis=1))
+        e1, e2 = edges.take(i, 0), edges.take(j, 0)
+        keep = ((e1[:, 0] != e2[:, 0]) & (e1[:, 0] != e2[:, 1])
+                & (e1[:, 1] != e2[:, 0]) & (e1[:, 1] != e2[:, 1]))       # no shared end
         return e1[keep], e2[keep]
 
     @staticmethod
@@ -243,7 +263,7 @@ class SelfCollision:
         pad = max(need, self.config.thickness) + self.config.thickness
         lo, hi = lo - pad, hi + pad
         t = self.triangles
-        lo_t, hi_t = lo[t].min(axis=1), hi[t].max(axis=1)
+        lo_t, hi_t = self._triangle_boxes(lo, hi)
         empty = np.zeros(0, np.int64)
         c = dict(lo=lo, hi=hi, verts=empty, tris=np.zeros((0, 3), np.int64),
                  e1=np.zeros((0, 2), np.int64), e2=np.zeros((0, 2), np.int64), narrow=None,
@@ -260,13 +280,17 @@ class SelfCollision:
         # the edges between those corners.
         tri_ids = np.flatnonzero(layered)
         active = np.zeros(len(lo), bool)
-        active[t[tri_ids].ravel()] = True
+        active[t.take(tri_ids, 0).ravel()] = True
         vert_ids = np.flatnonzero(active)
-        it, iv = box_pairs(lo_t[tri_ids], hi_t[tri_ids], lo[vert_ids], hi[vert_ids])
-        verts, tris = vert_ids[iv], t[tri_ids[it]]
-        keep = ~np.any(tris == verts[:, None], axis=1)         # shares the vertex
-        e = self.edges[active[self.edges].all(axis=1)]
-        e1, e2 = self._ee_candidates(e, lo[e].min(axis=1), hi[e].max(axis=1))
+        it, iv = box_pairs(lo_t.take(tri_ids, 0), hi_t.take(tri_ids, 0),
+                           lo.take(vert_ids, 0), hi.take(vert_ids, 0))
+        verts, tris = vert_ids.take(iv), t.take(tri_ids.take(it), 0)
+        keep = (tris[:, 0] != verts) & (tris[:, 1] != verts) & (tris[:, 2] != verts)
+        edges = self.edges
+        e = edges[active.take(edges[:, 0]) & active.take(edges[:, 1])]
+        p, q = e[:, 0], e[:, 1]
+        e1, e2 = self._ee_candidates(e, np.minimum(lo.take(p, 0), lo.take(q, 0)),
+                                     np.maximum(hi.take(p, 0), hi.take(q, 0)))
         c.update(verts=verts[keep], tris=tris[keep], e1=e1, e2=e2)
         return c
 
@@ -481,21 +505,32 @@ class SelfCollision:
         self.counters.ms += 1e3 * (_time.perf_counter() - start)
         return out
 
-    def separate(self, x: np.ndarray, moved: np.ndarray) -> np.ndarray:
+    def separate(self, x: np.ndarray, moved: np.ndarray, v: np.ndarray | None = None,
+                 h: float = 0.0) -> np.ndarray:
         """Move particles ``moved`` (indices, e.g. made by a split) that lie within
         ``thickness`` of another layer out to ``thickness`` along the side they
         are on; a move that would make a pair meet is not made.  Returns the
-        new positions ``(n, 3)`` (a copy)."""
+        new positions ``(n, 3)`` (a copy).
+
+        ``v`` ``(n, 3)`` (m/s) and ``h`` (s): the velocities and the longest
+        step about to be taken from ``x``.  The broad phase (a new topology
+        has none) is then built over that motion, so the step's own detection
+        reuses it instead of building another: its boxes, from positions
+        moved here by at most ``thickness``, lie inside."""
         start = _time.perf_counter()
         out = x.copy()
         if not len(moved):
             return out
         thickness = self.config.thickness
-        c = self._broad(x, x, x, 0.5 * thickness)
+        ahead = x if v is None else x + h * v
+        c = self._broad(x, np.minimum(x, ahead), np.maximum(x, ahead), 0.5 * thickness)
         mask = np.zeros(len(x), bool)
         mask[moved] = True
         keep = mask[c["verts"]]
         verts, tris = c["verts"][keep], c["tris"][keep]
+        if not len(verts):                  # no other layer near any of them
+            self.counters.ms += 1e3 * (_time.perf_counter() - start)
+            return out
         (_, _, _, _), gap = self._vf_pairs(x, verts, tris)
         d = np.linalg.norm(gap, axis=1)
         inside = (d < thickness) & (d > 1e-12)

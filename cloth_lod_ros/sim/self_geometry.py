@@ -1,13 +1,14 @@
 """Geometry of self-collision (design §3): broad phase, closest points and
 continuous (swept) tests, vectorised over many pairs.  Numpy only.
 
-* :func:`layered_boxes` - the same hash of triangle boxes, asking only
+* :func:`layered_boxes` - a hash of the triangles' boxes asking only
   which cells may hold two layers (cloth far apart in the material, or faces
-  turned by more than 60°): on a cloth without folds nothing further runs.
+  turned by more than 90° from their cell's mean): on a cloth without folds
+  nothing further runs.
 * :func:`box_pairs` - a uniform spatial hash: every axis-aligned box is
   entered in each grid cell it covers, boxes sharing a cell are candidates,
-  and candidates whose boxes do not overlap are dropped.  No Python loop over
-  boxes or pairs.
+  and candidates whose boxes do not overlap are dropped (a few boxes: every
+  pair tested at once).  No Python loop over boxes or pairs.
 * :func:`point_triangle` and :func:`segment_segment` - closest points
   (Ericson, *Real-Time Collision Detection*, §5.1.5 and §5.1.9).
 * :func:`vf_crossing` and :func:`ee_crossing` - continuous tests over a step
@@ -35,6 +36,10 @@ __all__ = ["box_pairs", "layered_boxes", "point_triangle", "segment_segment", "v
            "ee_crossing", "edges_of"]
 
 
+#: Up to this many candidate pairs, :func:`box_pairs` tests them all directly.
+_ALL_PAIRS = 1 << 15
+
+
 def edges_of(triangles: np.ndarray) -> np.ndarray:
     """Unique edges ``(e, 2)`` (sorted vertex pairs) of triangles ``(t, 3)``."""
     e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
@@ -44,22 +49,74 @@ def edges_of(triangles: np.ndarray) -> np.ndarray:
     return np.column_stack([key // n, key % n])
 
 
+def _extent(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``(k,)`` largest side of each box ``lo``/``hi`` ``(k, 3)``.
+
+    Here and below (k, 3) arrays are handled a column at a time: numpy
+    reduces them along either axis, and fancy-indexes their rows, several
+    times slower than it works on contiguous columns (this is most of the
+    time of a hash over a few thousand boxes)."""
+    return np.maximum(np.maximum(hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1]), hi[:, 2] - lo[:, 2])
+
+
+def _corner(a: np.ndarray, top: bool) -> np.ndarray:
+    """``(3,)`` the per-axis minimum (``top``: maximum) of points ``(k, 3)``."""
+    return np.array([a[:, d].max() if top else a[:, d].min() for d in range(a.shape[1])])
+
+
+def _median(values: np.ndarray) -> float:
+    """The median of ``values`` ``(k,)``, as ``np.median`` gives it, by a
+    partition (``np.median`` costs several times more on short arrays)."""
+    middle = len(values) // 2
+    if len(values) % 2:
+        return float(np.partition(values, middle)[middle])
+    part = np.partition(values, (middle - 1, middle))
+    return float((part[middle - 1] + part[middle]) / 2.0)
+
+
+#: The 8 cells of a 2 x 2 x 2 block as offsets ``(i, j, k)``, cell ``o`` having
+#: bits ``o = 4 i + 2 j + k``.
+_BLOCK = np.array([[(o >> 2) & 1, (o >> 1) & 1, o & 1] for o in range(8)])
+#: ``_IN_BLOCK[e, o]``: a box reaching one cell further along the axes of the
+#: bits ``e`` covers the block's cell ``o``.
+_IN_BLOCK = np.array([[(o & ~e) == 0 for o in range(8)] for e in range(8)])
+
+
 def _cells(lo: np.ndarray, hi: np.ndarray, cell: float, origin: np.ndarray,
            dims: np.ndarray):
-    """Every (box, cell key) for boxes ``lo``/``hi`` ``(k, 3)`` on the grid."""
-    c0 = np.floor((lo - origin) / cell).astype(np.int64)
-    c1 = np.floor((hi - origin) / cell).astype(np.int64)
-    span = c1 - c0 + 1                                   # (k, 3) >= 1
-    count = span.prod(axis=1)
+    """Every (box, cell key) for boxes ``lo``/``hi`` ``(k, 3)`` (m) on the grid of
+    side ``cell`` (m) from ``origin`` ``(3,)`` with ``dims`` ``(3,)`` cells:
+    ``(box index, key)`` arrays of equal length, sorted by box."""
+    first = np.floor((lo - origin) / cell).astype(np.int64)
+    extra = np.floor((hi - origin) / cell).astype(np.int64) - first     # (k, 3) >= 0
+    strides = np.array([dims[1] * dims[2], dims[2], 1])
+    base = first @ strides
+    if extra.max(initial=0) <= 1:
+        # The cell is larger than most boxes, so each covers at most a 2 x 2 x 2
+        # block: which of its 8 cells is one table row per box (a handful of
+        # numpy calls in all, where a box-by-box expansion takes dozens).
+        entry = np.flatnonzero(_IN_BLOCK.take(extra @ np.array([4, 2, 1]), 0))
+        box = entry >> 3
+        return box, base.take(box) + (_BLOCK @ strides).take(entry & 7)
+    span = [np.ascontiguousarray(extra[:, d]) + 1 for d in range(3)]
+    count = span[0] * span[1] * span[2]
     box = np.repeat(np.arange(len(lo)), count)
-    first = np.cumsum(count) - count
-    local = np.arange(int(count.sum())) - first[box]
-    sy, sz = span[box, 1], span[box, 2]
-    k = c0[box, 2] + local % sz
+    start = np.cumsum(count) - count
+    local = np.arange(int(count.sum())) - start.take(box)
+    sy, sz = span[1].take(box), span[2].take(box)
     rest = local // sz
-    j = c0[box, 1] + rest % sy
-    i = c0[box, 0] + rest // sy
-    return box, (i * dims[1] + j) * dims[2] + k
+    return box, base.take(box) + ((rest // sy) * dims[1] + rest % sy) * dims[2] + local % sz
+
+
+def _dense(key: np.ndarray, dims: np.ndarray) -> tuple[np.ndarray, int]:
+    """Cell keys as indices into per-cell arrays, and their length: the keys
+    themselves while the grid is not much larger than the entries (a cloth's
+    bounding box: a few cells per entry), else the keys renumbered."""
+    cells = int(dims.prod())
+    if cells <= 8 * len(key) + 4096:
+        return key, cells
+    unique, index = np.unique(key, return_inverse=True)
+    return index.ravel(), len(unique)
 
 
 def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.ndarray,
@@ -83,37 +140,44 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
       padding of each other) is flagged however tight the fold.
 
     A cloth without folds flags nothing and pays this one hash; with them,
-    only the flagged boxes go on to the pair search.
+    only the flagged boxes go on to the pair search.  The per-cell maxima,
+    minima and sums are scattered into arrays over the cells (``ufunc.at``,
+    ``bincount``) rather than grouped by sorting the keys, which cost more
+    than all the rest.
     """
     if not len(lo):
         return np.zeros(0, dtype=bool)
-    cell = 1.5 * max(float(np.median((hi - lo).max(axis=1))), 1e-9)
-    origin = lo.min(axis=0)
-    dims = np.floor((hi.max(axis=0) - origin) / cell).astype(np.int64) + 1
+    cell = 1.5 * max(_median(_extent(lo, hi)), 1e-9)
+    origin = _corner(lo, False)
+    dims = np.floor((_corner(hi, True) - origin) / cell).astype(np.int64) + 1
     box, key = _cells(lo, hi, cell, origin, dims)
-    order = np.argsort(key, kind="stable")
-    key, box = key[order], box[order]
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    gap = np.full(len(starts), -np.inf)
+    key, cells = _dense(key, dims)
+    far = 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad)
+    layered = np.zeros(cells, dtype=bool)
+    # (Columns one at a time: numpy's fancy indexing of (k, 3) arrays costs
+    # several times a take of their columns.)
     for d in (0, 1):
-        gap = np.maximum(gap, np.maximum.reduceat(uv_lo[box, d], starts)
-                         - np.minimum.reduceat(uv_hi[box, d], starts))
-    layered = gap > 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad)
-    counts = np.diff(np.r_[starts, len(key)])
-    n = normals[box]
-    mean = np.add.reduceat(n, starts, axis=0)
-    mean /= np.maximum(np.linalg.norm(mean, axis=1), 1e-300)[:, None]
-    cosine = np.einsum("kd,kd->k", n, np.repeat(mean, counts, axis=0))
-    layered |= np.minimum.reduceat(cosine, starts) < 0.0
+        top = np.full(cells, -np.inf)
+        np.maximum.at(top, key, np.ascontiguousarray(uv_lo[:, d]).take(box))
+        bottom = np.full(cells, np.inf)
+        np.minimum.at(bottom, key, np.ascontiguousarray(uv_hi[:, d]).take(box))
+        layered |= top - bottom > far              # cells without boxes: -inf
+    # The sum of the unit normals points along their mean direction: the sign
+    # of each normal's cosine to it needs no normalisation.
+    cosine = np.zeros(len(key))
+    for d in range(3):
+        n = np.ascontiguousarray(normals[:, d]).take(box)
+        cosine += n * np.bincount(key, n, cells).take(key)
+    layered[key[cosine < 0.0]] = True
     out = np.zeros(len(lo), dtype=bool)
-    if layered.any():
-        out[box[np.repeat(layered, counts)]] = True
+    out[box[layered.take(key)]] = True
     return out
 
 
 def box_pairs(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray | None = None,
               hi_b: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs ``(ia, ib)`` of overlapping boxes, each pair once.
+    """Index pairs ``(ia, ib)`` of overlapping boxes, each pair once, sorted
+    by ``ia`` then ``ib``.
 
     Args:
         lo_a, hi_a: ``(ka, 3)`` box corners, m.  lo_b, hi_b: ``(kb, 3)``; None:
@@ -124,32 +188,46 @@ def box_pairs(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray | None = None
         lo_b, hi_b = lo_a, hi_a
     if not len(lo_a) or not len(lo_b):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    if len(lo_a) * len(lo_b) <= _ALL_PAIRS:
+        # Few boxes (a small layered region): every pair at once costs a
+        # dozen numpy calls, the hash over a hundred.
+        overlap = np.ones((len(lo_a), len(lo_b)), dtype=bool)
+        for d in range(3):
+            overlap &= lo_a[:, d, None] <= hi_b[None, :, d]
+            overlap &= lo_b[None, :, d] <= hi_a[:, d, None]
+        if same:
+            overlap = np.triu(overlap, 1)
+        ia, ib = np.nonzero(overlap)                  # row-major: by ia, then ib
+        return ia.astype(np.int64), ib.astype(np.int64)
     # Cell: the median extent of the larger set's boxes (the triangles, edges),
     # so a typical box covers a few cells and a cell holds a few boxes.
-    ext = (hi_a - lo_a).max(axis=1) if len(lo_a) >= len(lo_b) else (hi_b - lo_b).max(axis=1)
-    cell = max(float(np.median(ext)), 1e-9)
-    origin = np.minimum(lo_a.min(axis=0), lo_b.min(axis=0))
-    top = np.maximum(hi_a.max(axis=0), hi_b.max(axis=0))
+    ext = _extent(lo_a, hi_a) if len(lo_a) >= len(lo_b) else _extent(lo_b, hi_b)
+    cell = max(_median(ext), 1e-9)
+    origin = np.minimum(_corner(lo_a, False), _corner(lo_b, False))
+    top = np.maximum(_corner(hi_a, True), _corner(hi_b, True))
     dims = np.floor((top - origin) / cell).astype(np.int64) + 1
     box_a, key_a = _cells(lo_a, hi_a, cell, origin, dims)
     box_b, key_b = (box_a, key_a) if same else _cells(lo_b, hi_b, cell, origin, dims)
     order = np.argsort(key_a, kind="stable")
-    key_sorted, box_sorted = key_a[order], box_a[order]
+    key_sorted, box_sorted = key_a.take(order), box_a.take(order)
     start = np.searchsorted(key_sorted, key_b, side="left")
-    stop = np.searchsorted(key_sorted, key_b, side="right")
-    n = stop - start
-    ib = np.repeat(box_b, n)
-    first = np.cumsum(n) - n
-    ia = box_sorted[np.repeat(start, n) + (np.arange(int(n.sum())) - np.repeat(first, n))]
-    if same:
-        keep = ia < ib
-        ia, ib = ia[keep], ib[keep]
-    if not len(ia):
-        return ia, ib
-    code = np.unique(ia * len(lo_b) + ib)
-    ia, ib = code // len(lo_b), code % len(lo_b)
-    overlap = np.all((lo_a[ia] <= hi_b[ib]) & (lo_b[ib] <= hi_a[ia]), axis=1)
-    return ia[overlap], ib[overlap]
+    n = np.searchsorted(key_sorted, key_b, side="right") - start
+    ib, shared = np.repeat(box_b, n), np.repeat(key_b, n)
+    ia = box_sorted.take(np.repeat(start - (np.cumsum(n) - n), n) + np.arange(int(n.sum())))
+    # A pair is kept in one cell only, the one holding the low corner of the
+    # two boxes' intersection (both boxes cover it when they overlap): no
+    # sort of all candidates to remove the repeats.  The floors are those of
+    # _cells, on the same numbers, so the cell is one the boxes were entered in.
+    keep = ia < ib if same else np.ones(len(ia), dtype=bool)
+    low = np.zeros(len(ia), dtype=np.int64)
+    for d in range(3):
+        la, lb = lo_a[:, d].take(ia), lo_b[:, d].take(ib)
+        keep &= (la <= hi_b[:, d].take(ib)) & (lb <= hi_a[:, d].take(ia))
+        low = low * dims[d] + np.floor((np.maximum(la, lb) - origin[d]) / cell).astype(np.int64)
+    keep &= low == shared
+    ia, ib = ia[keep], ib[keep]
+    order = np.argsort(ia * len(lo_b) + ib)         # by (ia, ib), as documented
+    return ia.take(order), ib.take(order)
 
 
 def _dot(a, b):
