@@ -196,7 +196,10 @@ def test_opening_and_closing_a_grasp(running):
     # Released: the corner swings down (waiting on simulated, not wall, time).
     assert node.spin_until(lambda: node.grid_point(*corner)[2] < 0.9, 20.0)
     assert node.call(SetBool, "grasp/other/close", SetBool.Request(data=True)).success
-    node.spin_for(0.5)
+    # The close is applied at the node's next tick: read the corner from a frame
+    # simulated well after it (a fixed wall-time wait is too short under load).
+    closed = float(node.stat("sim_time_s"))
+    assert node.spin_until(lambda: float(node.stat("sim_time_s")) > closed + 0.2, 20.0)
     held = node.grid_point(*corner)
     time_held = float(node.stat("sim_time_s"))
     node.spin_until(lambda: float(node.stat("sim_time_s")) > time_held + 0.5, 20.0)
