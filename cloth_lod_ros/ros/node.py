@@ -323,10 +323,11 @@ class ClothLodNode(Node):
         waiting = False
         if not self.paused and self.error is None:
             now = self._pace_now()
-            waiting = now is None
+            realtime = self.get_parameter("realtime").value
+            waiting = now is None and realtime      # unpaced, the clock is not waited for
             if now is not None and self._pace_start is None:     # /clock has started
                 self._pace_start, self._sim_start = now, self.sim.time
-            if self.get_parameter("realtime").value:
+            if realtime:
                 if now is not None:
                     behind = (now - self._pace_start) - (self.sim.time - self._sim_start)
                     steps = min(max(int(behind / self.sim.time_step), 0), MAX_STEPS_PER_TICK)
