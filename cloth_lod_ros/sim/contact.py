@@ -279,6 +279,12 @@ class ContactSet:
         contact lands on the offset surface where the surface is at the end
         of the stage, a sticking one moves with the surface, a slipping one
         feels friction against its velocity *relative* to the surface.
+        ``partners``, ``partner_weights``: ``(k, 3)`` for a contact with
+        another layer of the cloth (self-collision), the particles of the
+        other side and their barycentric weights (summing to 1): the
+        reaction to the impulse this contact applies acts on them.  Zero
+        weights (or None for the whole set): an obstacle, which takes the
+        reaction itself (kinematic).
     """
 
     indices: np.ndarray
@@ -287,6 +293,8 @@ class ContactSet:
     friction: np.ndarray
     hold: np.ndarray | None = None
     velocity: np.ndarray | None = None
+    partners: np.ndarray | None = None
+    partner_weights: np.ndarray | None = None
 
     def __post_init__(self):
         if self.hold is None:
@@ -304,7 +312,16 @@ class ContactSet:
     def subset(self, keep: np.ndarray) -> "ContactSet":
         return ContactSet(self.indices[keep], self.normals[keep], self.distance[keep],
                           self.friction[keep], self.hold[keep],
-                          None if self.velocity is None else self.velocity[keep])
+                          None if self.velocity is None else self.velocity[keep],
+                          None if self.partners is None else self.partners[keep],
+                          None if self.partners is None else self.partner_weights[keep])
+
+    def partner_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(partners (k, 3), weights (k, 3))``: :attr:`partners` and
+        :attr:`partner_weights`, zeros (no other side) where they are ``None``."""
+        if self.partners is None:
+            return np.zeros((len(self), 3), np.int64), np.zeros((len(self), 3))
+        return self.partners, self.partner_weights
 
     def surface_velocity(self) -> np.ndarray:
         """``(k, 3)`` m/s: :attr:`velocity`, zeros where it is ``None``."""
@@ -317,11 +334,16 @@ class ContactSet:
         if self.velocity is not None or other.velocity is not None:
             velocity = np.concatenate([self.surface_velocity()[keep],
                                        other.surface_velocity()])
+        partners = (None, None)
+        if self.partners is not None or other.partners is not None:
+            partners = tuple(np.concatenate([mine[keep], theirs]) for mine, theirs
+                             in zip(self.partner_arrays(), other.partner_arrays()))
         return ContactSet(np.concatenate([self.indices[keep], other.indices]),
                           np.concatenate([self.normals[keep], other.normals]),
                           np.concatenate([self.distance[keep], other.distance]),
                           np.concatenate([self.friction[keep], other.friction]),
-                          np.concatenate([self.hold[keep], other.hold]), velocity)
+                          np.concatenate([self.hold[keep], other.hold]), velocity,
+                          *partners)
 
 
 def _nearest(obstacles: list[Obstacle], x: np.ndarray):

@@ -19,16 +19,22 @@ before it did not suffice:
    get the per-particle velocity constraint of obstacle contact
    (:class:`~cloth_lod_ros.sim.contact.ContactSet`): normal ``n``, gap −
    thickness as its distance, and as the *surface velocity* the pair's common
-   (mass-weighted) velocity - an inelastic contact that conserves the pair's
-   momentum.  Held particles and particles resting on an obstacle count as
-   infinitely heavy, so a layer falling onto cloth that lies on a table stops
-   on it.  Side B is constrained too (normal ``−n``) only where A cannot give
+   velocity (the mean of the two sides': equal masses per area) - an
+   inelastic contact.  Held particles and particles resting on an obstacle
+   count as infinitely heavy (along the surface only if it has friction), so
+   a layer falling onto cloth that lies on a table stops on it.  The other
+   side's particles are kept with the constraint (``partners``): the solve
+   gives them the reaction (:mod:`~cloth_lod_ros.sim.layer_reactions`), so
+   that the layers exchange equal and opposite impulses.  Side B is constrained too (normal ``−n``) only where A cannot give
    way (held, or on an obstacle) and for pairs found crossing: every vertex
    near the other layer has its own pair, and forcing a triangle's corners to
    the velocity of one point of it dragged them and added energy.  The
    implicit solve then lands each constrained particle at ``thickness`` from
    the moving surface, releases the contacts that would pull and applies
-   Coulomb friction (``friction``) by rounds, exactly as for obstacles.  A
+   Coulomb friction (``friction``) by rounds, exactly as for obstacles - on
+   the upper side of a contact only (both sides are constrained against each
+   other; with friction on both, both stuck to the pair's velocity at the
+   start of the step and dragged the rest of the cloth along).  A
    particle with several candidate constraints keeps a crossing pair's, then
    the tightest (smallest distance); against an obstacle's constraint the
    obstacle wins unless both push the same way and the self-contact is
@@ -61,6 +67,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .contact import ContactSet
+from .layer_reactions import common_velocity
 from .self_geometry import (box_pairs, edges_of, ee_crossing, layered_boxes,
                             point_triangle, segment_segment, vf_crossing)
 
@@ -133,8 +140,10 @@ class SelfCounters:
 def merge_contacts(obstacle: ContactSet | None, own: ContactSet) -> tuple[ContactSet, int]:
     """One constraint per particle from obstacle and self-contact constraints:
     the obstacle's, unless both push the same way (normals within 90°) and the
-    self-contact is tighter (smaller distance).  Returns the merged set and
-    how many of its constraints are self-contacts."""
+    self-contact is tighter (smaller distance) - and never an obstacle's
+    found inside it (held) for a self-contact the solve may release (the
+    particle was left with no constraint and went on into the obstacle).
+    Returns the merged set and how many of its constraints are self-contacts."""
     if obstacle is None or not len(obstacle):
         return own, len(own)
     if not len(own):
@@ -145,7 +154,7 @@ def merge_contacts(obstacle: ContactSet | None, own: ContactSet) -> tuple[Contac
     if len(common):
         same_way = np.einsum("kd,kd->k", obstacle.normals[io], own.normals[is_]) > 0.0
         tighter = own.distance[is_] < obstacle.distance[io]
-        own_wins = same_way & tighter
+        own_wins = same_way & tighter & (own.hold[is_] | ~obstacle.hold[io])
         drop_obstacle[io[own_wins]] = True
         drop_own[is_[~own_wins]] = True
     return (obstacle.subset(~drop_obstacle).union(own.subset(~drop_own)),
@@ -382,7 +391,9 @@ class SelfCollision:
 
     # -- constraints ------------------------------------------------------------
     def constraints(self, pairs: SelfPairs, velocities: np.ndarray, masses: np.ndarray,
-                    fixed: np.ndarray, exclude: np.ndarray) -> ContactSet:
+                    fixed: np.ndarray, exclude: np.ndarray,
+                    slides: np.ndarray | None = None,
+                    up: np.ndarray | None = None) -> ContactSet:
         """Per-particle constraints (one per particle, the tightest) of ``pairs``.
 
         Args:
@@ -390,22 +401,27 @@ class SelfCollision:
             masses: ``(n,)`` kg.  fixed: ``(n,)`` bool, particles that count as
                 infinitely heavy (held, on an obstacle).
             exclude: particle indices never constrained (held).
+            slides: ``(n,)`` bool or None, fixed particles that are so only
+                along the normal (on a frictionless obstacle): along the
+                surface they move with the pair as the other layer pushes them.
+            up: ``(3,)`` unit vector or None: friction acts only on the
+                constraints whose normal points along it (the particle lies
+                above the other layer; None: on all).
         """
         start = _time.perf_counter()
         if not len(pairs):
             return _empty_contacts()
-        inv = np.where(fixed, 0.0, 1.0 / np.maximum(masses, 1e-300))
-        inv_a = np.einsum("kj,kj->k", pairs.wa ** 2, inv[pairs.a])
-        inv_b = np.einsum("kj,kj->k", pairs.wb ** 2, inv[pairs.b])
-        # Dedupe the repeated slots of a vertex side ((p, p, p) with (1, 0, 0)).
         va = np.einsum("kj,kjd->kd", pairs.wa, velocities[pairs.a])
         vb = np.einsum("kj,kjd->kd", pairs.wb, velocities[pairs.b])
-        total = inv_a + inv_b
-        # Common velocity (m_a v_a + m_b v_b)/(m_a + m_b) = (v_a/inv_a + ...)
-        # written with inverse masses so that a fixed side (inv 0) dominates.
-        share_a = np.where(total > 0, inv_b / np.where(total > 0, total, 1.0), 0.0)
-        u = share_a[:, None] * va + (1.0 - share_a)[:, None] * vb
-        rows, normals, dist, vel, hold = [], [], [], [], []
+        u = common_velocity(pairs.a, pairs.wa, va, pairs.b, pairs.wb, vb, fixed)
+        if slides is not None and np.any(slides[pairs.a] | slides[pairs.b]):
+            # Along the surface only the really immovable count as fixed.
+            along = common_velocity(pairs.a, pairs.wa, va, pairs.b, pairs.wb, vb,
+                                    fixed & ~slides)
+            un = np.einsum("kd,kd->k", u, pairs.normal)
+            along_n = np.einsum("kd,kd->k", along, pairs.normal)
+            u = along + (un - along_n)[:, None] * pairs.normal
+        rows, normals, dist, vel, hold, other, other_w = ([] for _ in range(7))
         distance = pairs.gap - self.config.thickness
         held = np.zeros(len(masses), bool)
         held[exclude] = True
@@ -418,8 +434,11 @@ class SelfCollision:
         # the contact (and add energy).
         a_stuck = np.all(fixed[pairs.a] | (pairs.wa <= 0), axis=1)
         both = a_stuck | pairs.hold
-        for side, weights, sign, use in ((pairs.a, pairs.wa, 1.0, np.ones(len(both), bool)),
-                                         (pairs.b, pairs.wb, -1.0, both)):
+        # Each constraint keeps the other side's particles (its partners): the
+        # solve applies the reaction to them (equal and opposite impulses).
+        for side, weights, far, far_w, sign, use in (
+                (pairs.a, pairs.wa, pairs.b, pairs.wb, 1.0, np.ones(len(both), bool)),
+                (pairs.b, pairs.wb, pairs.a, pairs.wa, -1.0, both)):
             carries = (weights >= _MIN_SHARE) | (weights == weights.max(axis=1, keepdims=True))
             carries &= (weights > 0) & use[:, None]
             k, j = np.nonzero(carries)
@@ -428,16 +447,28 @@ class SelfCollision:
             dist.append(distance[k])
             vel.append(u[k])
             hold.append(pairs.hold[k])
-        rows, normals, dist, vel, hold = (np.concatenate(v) for v in
-                                          (rows, normals, dist, vel, hold))
-        ok = ~held[rows]
-        rows, normals, dist, vel, hold = rows[ok], normals[ok], dist[ok], vel[ok], hold[ok]
+            other.append(far[k])
+            other_w.append(far_w[k])
+        ok = ~held[np.concatenate(rows)]
+        rows, normals, dist, vel, hold, other, other_w = (
+            np.concatenate(v)[ok] for v in (rows, normals, dist, vel, hold, other, other_w))
         # One per particle: a crossing pair's first, then the tightest.
         order = np.lexsort((dist, ~hold, rows))
         _, first = np.unique(rows[order], return_index=True)
         pick = order[first]
-        out = ContactSet(rows[pick], normals[pick], dist[pick],
-                         np.full(len(pick), self.config.friction), hold[pick], vel[pick])
+        # Friction on one side of a contact only.  Every vertex near the other
+        # layer has its own constraint, so both layers of a contact are
+        # constrained against each other; with friction on both, both would
+        # stick to the velocity the pair had at the start of the step, the
+        # pair would not answer the rest of the cloth pulling on it (as if
+        # infinitely heavy) and drag it along: energy from nowhere.  The upper
+        # side carries the friction, the lower one takes its reaction
+        # (:mod:`~cloth_lod_ros.sim.layer_reactions`).
+        friction = np.full(len(pick), self.config.friction)
+        if up is not None:
+            friction[normals[pick] @ up <= 0.0] = 0.0
+        out = ContactSet(rows[pick], normals[pick], dist[pick], friction, hold[pick],
+                         vel[pick], other[pick], other_w[pick])
         self.counters.ms += 1e3 * (_time.perf_counter() - start)
         return out
 
@@ -569,4 +600,5 @@ def _side_normals(x0, x1, a, wa, b, wb, gap, d):
 
 def _empty_contacts() -> ContactSet:
     return ContactSet(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
-                      np.zeros(0, bool), np.zeros((0, 3)))
+                      np.zeros(0, bool), np.zeros((0, 3)), np.zeros((0, 3), np.int64),
+                      np.zeros((0, 3)))

@@ -252,6 +252,13 @@ class TimeStepper:
         self.contact = contact
         # SelfCollision or None (off: no self-collision code runs).
         self.self_collision = self_collision
+        # Against gravity (z without it), tilted a little so that no layer
+        # lies exactly across it: the side of a layer contact that carries
+        # friction is the one above.
+        g = np.asarray(solver.gravity, dtype=float)
+        up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, 1.0])
+        up = up + np.array([1e-3, 2e-3, 3e-3])
+        self._up = up / np.linalg.norm(up)
         self._crossing = False
         self.configure(simulation)
         self._next_step: float | None = None
@@ -329,11 +336,24 @@ class TimeStepper:
             self._next_step = min(h, frame)
         return current, total, contacts, steps
 
-    def _with_self(self, contacts, pairs, velocities, masses, fixed, held_indices):
+    def _with_self(self, contacts, pairs, velocities, masses, held_indices):
         """Obstacle ``contacts`` merged with the self-contact constraints of ``pairs``."""
         sc = self.self_collision
+        # Infinitely heavy for the pairs' common velocity: held particles and
+        # those resting on an obstacle (not merely in its speculative band);
+        # along the surface only if it has friction (a frictionless one lets
+        # the layer above drag them).
+        fixed = np.zeros(len(masses), dtype=bool)
+        slides = np.zeros(len(masses), dtype=bool)
+        if contacts is not None:
+            resting = contacts.distance < 0.5 * self.contact.thickness
+            fixed[contacts.indices[resting]] = True
+            slides[contacts.indices[resting & (contacts.friction <= 0.0)]] = True
+        fixed[held_indices] = True
+        slides[held_indices] = False
         merged, sc.last_constraints = merge_contacts(
-            contacts, sc.constraints(pairs, velocities, masses, fixed, held_indices))
+            contacts, sc.constraints(pairs, velocities, masses, fixed, held_indices, slides,
+                                     self._up))
         return merged
 
     def _factor(self, error: float) -> float:
@@ -374,13 +394,7 @@ class TimeStepper:
         solved = contacts
         if sc is not None:
             pairs = sc.proximity(state.positions, state.velocities, h)
-            # Infinitely heavy for the pairs' common velocity: held particles and
-            # those resting on an obstacle (not merely in its speculative band).
-            fixed = np.zeros(len(masses), dtype=bool)
-            fixed[indices] = True
-            if contacts is not None:
-                fixed[contacts.indices[contacts.distance < 0.5 * thickness]] = True
-            solved = self._with_self(contacts, pairs, state.velocities, masses, fixed, indices)
+            solved = self._with_self(contacts, pairs, state.velocities, masses, indices)
         result = self.scheme.step(self.solver, elements, masses, state, start_targets,
                                   held, h, solved)
         report = result.report
@@ -410,10 +424,7 @@ class TimeStepper:
                 if len(crossed):
                     sc.counters.resolves += 1
                     pairs = pairs.concat(crossed)
-                if contacts is not None:
-                    fixed[contacts.indices[contacts.distance < 0.5 * thickness]] = True
-                solved = self._with_self(contacts, pairs, result.velocities, masses, fixed,
-                                         indices)
+                solved = self._with_self(contacts, pairs, result.velocities, masses, indices)
             result = self.scheme.step(self.solver, elements, masses, state, start_targets,
                                       held, h, solved)
             result.report.add(report)       # the first attempt's work counts too
