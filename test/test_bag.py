@@ -22,7 +22,8 @@ import yaml
 
 # The node tests' scene (two grasps), ROS fixtures and process helpers; importing
 # test_node first also sets the isolated ROS environment.
-from test_node import Running, driver, env, observer, scene_file  # noqa: F401
+from test_node import (Running, driver, env, no_node_outlives_its_test, observer,  # noqa: F401
+                       scene_file)
 
 import rclpy  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402

@@ -69,8 +69,22 @@ def scene_file(tmp_path):
     return path
 
 
+@pytest.fixture(autouse=True)
+def no_node_outlives_its_test():
+    """A test that fails before stopping its node would leave the process
+    running (and loading the machine) for the rest of the session."""
+    yield
+    while Running.started:
+        proc = Running.started.pop()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+
+
 class Running:
     """A cloth_lod_node process and the latest messages it published."""
+
+    started: list = []      # every process started, for no_node_outlives_its_test
 
     def __init__(self, observer, scene, *params):
         args = [sys.executable, "-m", "cloth_lod_ros.ros.node", "--ros-args",
@@ -80,6 +94,7 @@ class Running:
             args += ["-p", p]
         self.proc = subprocess.Popen(args, env=env(), stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True)
+        Running.started.append(self.proc)
         self.observer = observer
         self.grid, self.stats, self.markers = [], [], []
         self.subs = [

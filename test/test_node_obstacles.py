@@ -13,7 +13,8 @@ import textwrap
 import numpy as np
 import pytest
 
-from test_node import Running, env, observer  # noqa: F401  (sets the ROS environment)
+from test_node import (Running, env, no_node_outlives_its_test,  # noqa: F401  (sets the ROS environment)
+                       observer)
 
 from std_srvs.srv import SetBool  # noqa: E402
 
