@@ -46,7 +46,13 @@ class SparsePattern:
     def __init__(self, vertex_count: int, element_vertices: list[np.ndarray]):
         self.vertex_count = n = int(vertex_count)
         element_vertices = [np.asarray(v, dtype=np.int64) for v in element_vertices]
-        keys = [(v[:, :, None] * n + v[:, None, :]).ravel() for v in element_vertices]
+        keys = []
+        for v in element_vertices:
+            # Key i·n + j of every vertex pair (i, j) of every element, in
+            # (e, i, j) order; gathers along whole rows (see the slots below).
+            i, j = np.indices((v.shape[1], v.shape[1])).reshape(2, -1)
+            keys.append((np.take(v, i, axis=1, mode="clip") * n
+                         + np.take(v, j, axis=1, mode="clip")).ravel())
         # Every vertex's own block is present (mass and drag live there).
         keys.append(np.arange(n, dtype=np.int64) * (n + 1))
         unique_keys, block_of = _unique_with_inverse(np.concatenate(keys), n * n)

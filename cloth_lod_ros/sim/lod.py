@@ -267,9 +267,9 @@ class LodPolicy:
                 if log is not None:
                     log.append(op)
                 moved.update(op.edge)
-                for parent in hierarchy.vertex_parents[hierarchy.midpoint[op.edge]]:
+                for parent in hierarchy.vertex_parents[hierarchy.midpoint[op.edge]].tolist():
                     if parent >= 0:
-                        changed.update(_edges(hierarchy.tri[parent]))
+                        changed.update(_edges(hierarchy.tri[parent].tolist()))
         merges = 0
         for i, edge in enumerate(decision.merge):
             m = hierarchy.midpoint.get(edge)
@@ -284,9 +284,11 @@ class LodPolicy:
                 if (decision.merge_energy[i] - decision.merge_kinetic[i] + kinetic
                         > decision.merge_bound[i]):
                     continue
-            parents = [t for t in hierarchy.vertex_parents[m] if t >= 0]
-            outer = [e for t in parents for e in _edges(hierarchy.tri[t])[::2]]
-            if hierarchy.tri_active[hierarchy.children[parents]].all() and changed.isdisjoint(outer):
+            parents = [t for t in hierarchy.vertex_parents[m].tolist() if t >= 0]
+            outer = [e for t in parents for e in _edges(hierarchy.tri[t].tolist())[::2]]
+            active = hierarchy.tri_active
+            if (all(active[k] for t in parents for k in hierarchy.children[t].tolist())
+                    and changed.isdisjoint(outer)):
                 hierarchy.apply(Merge(edge), time)
                 merges += 1
                 if log is not None:
@@ -298,7 +300,7 @@ class LodPolicy:
 
 def _edges(corners) -> list:
     """Sorted vertex pairs of a triangle ``(apex, left, right)``: leg, hypotenuse, leg."""
-    a, b, c = (int(i) for i in corners)
+    a, b, c = corners            # Python ints (``tolist``)
     return [(min(a, b), max(a, b)), (min(b, c), max(b, c)), (min(c, a), max(c, a))]
 
 
