@@ -88,7 +88,10 @@ def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
         theta, grad = evaluation.hinge_angle, evaluation.hinge_gradient
     else:
         theta, grad = hinge_angles(x, hv, with_gradient=True)
-    grad_norm = np.linalg.norm(grad, axis=2)                  # (h, 4)
+    # |∂θ/∂x_k| written out: the same sums in the same order as
+    # np.linalg.norm(grad, axis=2), which reduces over the length-3 axis ~10x slower.
+    squares = grad * grad
+    grad_norm = np.sqrt(squares[..., 0] + squares[..., 1] + squares[..., 2])   # (h, 4)
     height = 0.5 * (1.0 / grad_norm[:, 2] + 1.0 / grad_norm[:, 3])
     rate = np.einsum("hkd,hkd->h", grad, v[hv])
     force = bend_stiffness * elements.hinge_weight * np.abs(theta) * grad_norm.max(axis=1)
