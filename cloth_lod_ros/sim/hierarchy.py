@@ -173,39 +173,53 @@ class Hierarchy48:
         self.tri_end += 1
         return self.tri_end - 1
 
+    # Every split and merge calls these a few times.  Scalar Python on
+    # ``tolist``/``item`` values, not numpy scalars or fancy indexing: numpy's
+    # per-call overhead (~0.1-1 µs) would dominate these few-element updates.
     def _activate(self, t: int, time: float) -> None:
-        # Scalar Python here, not fancy indexing: every split and merge calls
-        # this a few times, and numpy's per-call overhead would dominate.
         a, b, c = self.tri[t].tolist()
-        edges = self._edges
-        for e in (_key(a, b), _key(b, c), _key(c, a)):
-            edges.setdefault(e, []).append(t)
-        units = 2.0 ** -int(self.level[t])
-        mass_units = self.mass_units
-        mass_units[a] += units
-        mass_units[b] += units
-        mass_units[c] += units
-        self.tri_active[t] = True
+        self._link(t, a, b, c, 2.0 ** -self.level.item(t))
         self.birth[t] = time
 
     def _deactivate(self, t: int) -> None:
         a, b, c = self.tri[t].tolist()
+        self._unlink(t, a, b, c, 2.0 ** -self.level.item(t))
+
+    def _link(self, t: int, a: int, b: int, c: int, units: float) -> None:
+        """Make triangle ``t`` with corners ``(a, b, c)`` active: index its edges
+        and give each corner ``units`` mass units (``2**-level``; exact)."""
         edges = self._edges
-        for e in (_key(a, b), _key(b, c), _key(c, a)):
+        for e in ((a, b) if a < b else (b, a), (b, c) if b < c else (c, b),
+                  (c, a) if c < a else (a, c)):
+            users = edges.get(e)
+            if users is None:
+                edges[e] = [t]
+            else:
+                users.append(t)
+        mass_units = self.mass_units
+        mass_units[a] = mass_units.item(a) + units
+        mass_units[b] = mass_units.item(b) + units
+        mass_units[c] = mass_units.item(c) + units
+        self.tri_active[t] = True
+
+    def _unlink(self, t: int, a: int, b: int, c: int, units: float) -> None:
+        """Inverse of :meth:`_link`."""
+        edges = self._edges
+        for e in ((a, b) if a < b else (b, a), (b, c) if b < c else (c, b),
+                  (c, a) if c < a else (a, c)):
             users = edges[e]
             users.remove(t)
             if not users:
                 del edges[e]
-        units = 2.0 ** -int(self.level[t])
         mass_units = self.mass_units
-        mass_units[a] -= units
-        mass_units[b] -= units
-        mass_units[c] -= units
+        mass_units[a] = mass_units.item(a) - units
+        mass_units[b] = mass_units.item(b) - units
+        mass_units[c] = mass_units.item(c) - units
         self.tri_active[t] = False
 
     # -- queries ------------------------------------------------------------
     def hypotenuse(self, t: int) -> tuple[int, int]:
-        return _key(int(self.tri[t, 1]), int(self.tri[t, 2]))
+        return _key(self.tri.item(t, 1), self.tri.item(t, 2))
 
     def edge_triangles(self, edge: tuple[int, int]) -> list[int]:
         """Active triangles on an edge (sorted vertex pair); empty if not an edge."""
@@ -289,63 +303,74 @@ class Hierarchy48:
 
     def _split(self, edge: tuple[int, int], time: float) -> None:
         edge = _key(*edge)
-        tris = self.edge_triangles(edge)
-        if not tris or any(self.hypotenuse(t) != edge for t in tris):
+        left, right = edge
+        tris = list(self._edges.get(edge, ()))
+        corners = [self.tri[t].tolist() for t in tris]
+        if not tris or any(_key(c[1], c[2]) != edge for c in corners):
             raise MeshError(f"cannot split {edge}: not the hypotenuse of all its triangles")
-        level = int(self.level[tris[0]])
+        level = self.level.item(tris[0])
         if level >= self.max_level:
             raise MeshError(f"cannot split {edge}: triangles already at the maximum level")
-        left, right = edge
         m = self._new_vertex()
-        self.uv[m] = 0.5 * (self.uv[left] + self.uv[right])
-        self.x[m] = 0.5 * (self.x[left] + self.x[right])        # face rule: nothing moves
-        self.v[m] = 0.5 * (self.v[left] + self.v[right])        # keeps momentum
+        uv, x, v = self.uv, self.x, self.v
+        uv[m] = 0.5 * (uv[left] + uv[right])
+        x[m] = 0.5 * (x[left] + x[right])        # face rule: nothing moves
+        v[m] = 0.5 * (v[left] + v[right])        # keeps momentum
         self.mass_units[m] = 0.0
         self.vertex_active[m] = True
-        self.vertex_edge[m] = edge
-        self.vertex_parents[m] = (tris[0], tris[1] if len(tris) == 2 else -1)
-        for t in tris:
-            apex, l, r = (int(i) for i in self.tri[t])
-            self._deactivate(t)
+        self.vertex_edge[m, 0], self.vertex_edge[m, 1] = left, right
+        self.vertex_parents[m, 0] = tris[0]
+        self.vertex_parents[m, 1] = tris[1] if len(tris) == 2 else -1
+        units, kid_units = 2.0 ** -level, 2.0 ** -(level + 1)
+        for t, (apex, l, r) in zip(tris, corners):
+            self._unlink(t, apex, l, r, units)
             kids = (self._new_triangle(), self._new_triangle())
-            for kid, corners in zip(kids, ((m, apex, l), (m, r, apex))):
-                self.tri[kid] = corners
-                self.level[kid] = level + 1
-                self.parent[kid] = t
-                self.children[kid] = -1
-                self._activate(kid, time)
-            self.children[t] = kids
+            tri, kid_level, parent = self.tri, self.level, self.parent   # after any growth
+            children, birth = self.children, self.birth
+            for kid, (a, b, c) in zip(kids, ((m, apex, l), (m, r, apex))):
+                tri[kid, 0], tri[kid, 1], tri[kid, 2] = a, b, c
+                kid_level[kid] = level + 1
+                parent[kid] = t
+                children[kid, 0] = children[kid, 1] = -1
+                self._link(kid, a, b, c, kid_units)
+                birth[kid] = time
+            children[t, 0], children[t, 1] = kids
         self.midpoint[edge] = m
 
     def _merge(self, edge: tuple[int, int], time: float) -> None:
         edge = _key(*edge)
-        if edge not in self.midpoint:
+        m = self.midpoint.get(edge)
+        if m is None:
             raise MeshError(f"cannot merge {edge}: it is not split")
-        parents = self._parents(self.midpoint[edge])
-        kids = self.children[list(parents)].ravel()
-        if not self.tri_active[kids].all():
+        parents = [t for t in self.vertex_parents[m].tolist() if t >= 0]
+        kids = [self.children[t].tolist() for t in parents]
+        active = self.tri_active
+        if not all(active[k] for pair in kids for k in pair):
             raise MeshError(f"cannot merge {edge}: its children are refined further")
-        m = self.midpoint[edge]
         left, right = edge
-        mass_m = self.mass_units[m]
-        for t in parents:
-            for kid in self.children[t]:
-                self._deactivate(int(kid))
-                self._free_triangles.append(int(kid))
-            self.children[t] = -1
+        mass_units = self.mass_units
+        mass_m = mass_units.item(m)
+        for t, pair in zip(parents, kids):
+            for kid in pair:
+                self._deactivate(kid)
+                self._free_triangles.append(kid)
+            self.children[t, 0] = self.children[t, 1] = -1
             self._activate(t, time)
         # Momentum: m's mass went back to the edge ends (equally); give both the
-        # same velocity change so that Σ m v is unchanged.
-        change = merge_velocity_change(mass_m, self.mass_units[left] + self.mass_units[right],
-                                       self.v[m], self.v[left], self.v[right])
-        if np.any(change != 0.0):
-            self.v[[left, right]] += change
+        # same velocity change so that Σ m v is unchanged
+        # (merge_velocity_change, written out for one merge).
+        v = self.v
+        change = mass_m * (v[m] - 0.5 * (v[left] + v[right])) / (
+            mass_units.item(left) + mass_units.item(right))
+        if change.any():
+            v[left] += change
+            v[right] += change
         self.vertex_active[m] = False
-        self.mass_units[m] = 0.0
+        mass_units[m] = 0.0
         self.vertex_edge[m] = -1
         self.vertex_parents[m] = -1
         self.x[m] = 0.0
-        self.v[m] = 0.0
+        v[m] = 0.0
         self._free_vertices.append(m)
         del self.midpoint[edge]
 
@@ -362,7 +387,7 @@ class Hierarchy48:
         return ops
 
     def _refine(self, t: int, time: float, ops: list[Split]) -> bool:
-        if not self.tri_active[t] or self.level[t] >= self.max_level:
+        if not self.tri_active[t] or self.level.item(t) >= self.max_level:
             return False
         edge = self.hypotenuse(t)
         for other in self.edge_triangles(edge):

@@ -88,7 +88,10 @@ def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
         theta, grad = evaluation.hinge_angle, evaluation.hinge_gradient
     else:
         theta, grad = hinge_angles(x, hv, with_gradient=True)
-    grad_norm = np.linalg.norm(grad, axis=2)                  # (h, 4)
+    # |∂θ/∂x_k| written out: the same sums in the same order as
+    # np.linalg.norm(grad, axis=2), which reduces over the length-3 axis ~10x slower.
+    squares = grad * grad
+    grad_norm = np.sqrt(squares[..., 0] + squares[..., 1] + squares[..., 2])   # (h, 4)
     height = 0.5 * (1.0 / grad_norm[:, 2] + 1.0 / grad_norm[:, 3])
     rate = np.einsum("hkd,hkd->h", grad, v[hv])
     force = bend_stiffness * elements.hinge_weight * np.abs(theta) * grad_norm.max(axis=1)
@@ -267,9 +270,9 @@ class LodPolicy:
                 if log is not None:
                     log.append(op)
                 moved.update(op.edge)
-                for parent in hierarchy.vertex_parents[hierarchy.midpoint[op.edge]]:
+                for parent in hierarchy.vertex_parents[hierarchy.midpoint[op.edge]].tolist():
                     if parent >= 0:
-                        changed.update(_edges(hierarchy.tri[parent]))
+                        changed.update(_edges(hierarchy.tri[parent].tolist()))
         merges = 0
         for i, edge in enumerate(decision.merge):
             m = hierarchy.midpoint.get(edge)
@@ -284,9 +287,11 @@ class LodPolicy:
                 if (decision.merge_energy[i] - decision.merge_kinetic[i] + kinetic
                         > decision.merge_bound[i]):
                     continue
-            parents = [t for t in hierarchy.vertex_parents[m] if t >= 0]
-            outer = [e for t in parents for e in _edges(hierarchy.tri[t])[::2]]
-            if hierarchy.tri_active[hierarchy.children[parents]].all() and changed.isdisjoint(outer):
+            parents = [t for t in hierarchy.vertex_parents[m].tolist() if t >= 0]
+            outer = [e for t in parents for e in _edges(hierarchy.tri[t].tolist())[::2]]
+            active = hierarchy.tri_active
+            if (all(active[k] for t in parents for k in hierarchy.children[t].tolist())
+                    and changed.isdisjoint(outer)):
                 hierarchy.apply(Merge(edge), time)
                 merges += 1
                 if log is not None:
@@ -298,7 +303,7 @@ class LodPolicy:
 
 def _edges(corners) -> list:
     """Sorted vertex pairs of a triangle ``(apex, left, right)``: leg, hypotenuse, leg."""
-    a, b, c = (int(i) for i in corners)
+    a, b, c = corners            # Python ints (``tolist``)
     return [(min(a, b), max(a, b)), (min(b, c), max(b, c)), (min(c, a), max(c, a))]
 
 

@@ -216,8 +216,10 @@ def build_hinges(triangles: np.ndarray, vertex_count: int) -> Hinges:
     keys = lo * (vertex_count + 1) + hi
     order = np.argsort(keys, kind="stable")
     sorted_keys = keys[order]
-    _, group_start, counts = np.unique(sorted_keys, return_index=True,
-                                       return_counts=True)
+    # Groups of equal keys, read off the sorted keys (what np.unique with
+    # return_index/return_counts gives, without its second sort).
+    group_start = np.flatnonzero(np.concatenate(([len(keys) > 0], sorted_keys[1:] != sorted_keys[:-1])))
+    counts = np.diff(np.append(group_start, len(sorted_keys)))
     if np.any(counts > 2):
         raise MeshError("non-manifold mesh: an edge is shared by more than two triangles")
     shared = group_start[counts == 2]
