@@ -12,9 +12,7 @@ tolerance add up to).  Writes ``solvers.json`` and ``solvers.md`` in ``--out``.
 
 from __future__ import annotations
 
-import json
 import os
-import platform
 import tempfile
 import time as _time
 from pathlib import Path
@@ -46,7 +44,7 @@ QUICK_CASES = (("uniform L3", "hang_two_corners", ["lod.enabled=false", "cloth.l
 def run_backends(out: Path, repeats: int = 3, quick: bool = False, cpu: int | None = None,
                  backends=BACKENDS, progress=print) -> dict:
     """Run every case with every backend; return and write the results."""
-    from .runner import _run_worker        # the pinned single-thread worker launcher
+    from .runner import _run_worker, write_suite    # pinned single-thread workers
     from ...sim.solvers import available_methods
     backends = [b for b in backends if b in available_methods()]    # optional ones
     cases = QUICK_CASES if quick else CASES
@@ -95,12 +93,7 @@ def run_backends(out: Path, repeats: int = 3, quick: bool = False, cpu: int | No
                 triangles_mean=c["triangles_mean"],
                 max_distance_from_pcg_m=(float(np.linalg.norm(final - reference, axis=1).max())
                                          if reference is not None else None)))
-    result = dict(machine=dict(platform=platform.platform(), processor=platform.processor(),
-                               cpu=cpu, python=platform.python_version()),
-                  repeats=repeats, minutes=(_time.time() - start) / 60, rows=rows)
-    (out / "solvers.json").write_text(json.dumps(result, indent=1))
-    (out / "solvers.md").write_text(markdown(result))
-    return result
+    return write_suite(out, "solvers", rows, repeats, cpu, start, markdown)
 
 
 def markdown(result: dict) -> str:

@@ -97,6 +97,19 @@ def _run_worker(spec: dict, workdir: Path, tag: str) -> dict:
     return json.loads(result_path.read_text())
 
 
+def write_suite(out: Path, stem: str, rows: list, repeats: int, cpu: int, start: float,
+                render) -> dict:
+    """Write ``stem``.json and ``stem``.md (``render(result)``) for a suite
+    of pinned runs (``--solvers``, ``--scenes``) started at ``start``
+    (``time.time()``); return the result."""
+    result = dict(machine=dict(platform=platform.platform(), processor=platform.processor(),
+                               cpu=cpu, python=platform.python_version()),
+                  repeats=repeats, minutes=(_time.time() - start) / 60, rows=rows)
+    (out / f"{stem}.json").write_text(json.dumps(result, indent=1))
+    (out / f"{stem}.md").write_text(render(result))
+    return result
+
+
 def _machine(cpu: int) -> dict:
     import scipy
     model = "unknown"
@@ -306,26 +319,19 @@ def run(args) -> int:
     started = _time.perf_counter()
     say = (lambda *a: None) if getattr(args, "quiet", False) else (
         lambda *a: print(*a, flush=True))
-    if getattr(args, "solvers", False):
-        from .backends import run_backends
-        try:
-            result = run_backends(Path(args.out), repeats=args.repeats or 3, quick=args.quick,
-                                  cpu=args.cpu, progress=say)
-        except BenchError as exc:
-            print(f"cloth-lod bench: {exc}", file=sys.stderr)
-            return 3
-        say(f"wrote {Path(args.out) / 'solvers.md'} ({result['minutes']:.1f} min)")
-        return 0
-    if getattr(args, "scenes", False):
-        from .scenes import run_scenes
-        try:
-            result = run_scenes(Path(args.out), repeats=args.repeats or 3, quick=args.quick,
-                                cpu=args.cpu, progress=say)
-        except BenchError as exc:
-            print(f"cloth-lod bench: {exc}", file=sys.stderr)
-            return 3
-        say(f"wrote {Path(args.out) / 'scenes.md'} ({result['minutes']:.1f} min)")
-        return 0
+    for flag, module, function, table in (("solvers", "backends", "run_backends", "solvers.md"),
+                                          ("scenes", "scenes", "run_scenes", "scenes.md")):
+        if getattr(args, flag, False):
+            import importlib
+            suite = getattr(importlib.import_module(f"{__package__}.{module}"), function)
+            try:
+                result = suite(Path(args.out), repeats=args.repeats or 3, quick=args.quick,
+                               cpu=args.cpu, progress=say)
+            except BenchError as exc:
+                print(f"cloth-lod bench: {exc}", file=sys.stderr)
+                return 3
+            say(f"wrote {Path(args.out) / table} ({result['minutes']:.1f} min)")
+            return 0
     try:
         _resolve(args)
         scene_path = find_scene_file(args.scene)

@@ -19,9 +19,7 @@ for a converged reference to mean much: see the README).
 
 from __future__ import annotations
 
-import json
 import os
-import platform
 import tempfile
 import time as _time
 from dataclasses import dataclass, field
@@ -85,7 +83,7 @@ QUICK_SCENE_CASES = (
 def run_scenes(out: Path, repeats: int = 3, quick: bool = False, cpu: int | None = None,
                cases=None, progress=print) -> dict:
     """Run every case ``repeats`` times in rounds; write and return the table."""
-    from .runner import _run_worker        # the pinned single-thread worker launcher
+    from .runner import _run_worker, write_suite    # pinned single-thread workers
     from ...sim.solvers import available_methods
     cases = cases or (QUICK_SCENE_CASES if quick else SCENE_CASES)
     if "cholmod" not in available_methods():
@@ -115,12 +113,7 @@ def run_scenes(out: Path, repeats: int = 3, quick: bool = False, cpu: int | None
         if case.vs is not None:
             row["vs"] = case.vs
             row["ratio_to_vs"] = row["ms_per_frame"] / by_label[case.vs]["ms_per_frame"]
-    result = dict(machine=dict(platform=platform.platform(), processor=platform.processor(),
-                               cpu=cpu, python=platform.python_version()),
-                  repeats=repeats, minutes=(_time.time() - start) / 60, rows=rows)
-    (out / "scenes.json").write_text(json.dumps(result, indent=1))
-    (out / "scenes.md").write_text(markdown(result))
-    return result
+    return write_suite(out, "scenes", rows, repeats, cpu, start, markdown)
 
 
 def _row(case: SceneCase, costs: list[dict]) -> dict:
