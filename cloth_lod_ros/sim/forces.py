@@ -132,8 +132,12 @@ def hinge_weights(edge_length2: np.ndarray, areas: np.ndarray,
         hypotenuse: ``(h, 2)`` whether the edge is that triangle's hypotenuse
             (γ = ½ on such a side, 1 on a leg side, averaged over both).
     """
-    gamma = np.where(hypotenuse, 0.5, 1.0).mean(axis=1)
-    return gamma * edge_length2 / areas.sum(axis=1)
+    # Written out over the two sides: the mean of two of {½, 1} is exact either
+    # way, and a length-2 sum is the one addition; numpy's reductions along a
+    # length-2 axis cost ~10x more than these column operations.
+    hyp_count = hypotenuse[:, 0].astype(float) + hypotenuse[:, 1]
+    gamma = 1.0 - 0.25 * hyp_count
+    return gamma * edge_length2 / (areas[:, 0] + areas[:, 1])
 
 
 def membrane_energies(coef_u: np.ndarray, coef_v: np.ndarray, area: np.ndarray,
