@@ -41,9 +41,12 @@ class SparsePattern:
         vertex_count: n.
         element_vertices: list of ``(e, k)`` integer arrays (triangles k=3,
             hinges k=4); each element couples all pairs of its vertices.
+        buffer: storage for the slots, e.g. from a predecessor's :meth:`retire`;
+            used if it is a large enough 1-D int64 array, else a new one is made.
     """
 
-    def __init__(self, vertex_count: int, element_vertices: list[np.ndarray]):
+    def __init__(self, vertex_count: int, element_vertices: list[np.ndarray],
+                 buffer: np.ndarray | None = None):
         self.vertex_count = n = int(vertex_count)
         element_vertices = [np.asarray(v, dtype=np.int64) for v in element_vertices]
         keys = []
@@ -66,8 +69,16 @@ class SparsePattern:
         # (i, a, j, b) -> (i, j) template, then one add of 3a + b: broadcasting
         # over the 3 × 3 axes directly makes numpy loop over length-3 rows
         # (~4x slower; it was most of a topology change's pattern cost).
-        self._all_slots = np.empty(9 * sum(v.size * v.shape[1] for v in element_vertices),
-                                   dtype=np.int64)
+        # Its storage is best reused: in a running simulation, fresh pages of
+        # this size (~1.5 MB at 400 particles) cost a page fault each on first
+        # write, a quarter of an adaptive mesh's pattern build.  New storage
+        # gets headroom, as a refining mesh grows a little per change.
+        size = 9 * sum(v.size * v.shape[1] for v in element_vertices)
+        if (buffer is not None and buffer.dtype == np.int64 and buffer.ndim == 1
+                and len(buffer) >= size):
+            self._all_slots = buffer[:size]
+        else:
+            self._all_slots = np.empty(size + size // 4, dtype=np.int64)[:size]
         offset = written = 0
         for v in element_vertices:
             e, k = v.shape
@@ -91,11 +102,21 @@ class SparsePattern:
             diagonal: ``(n,)`` scalar added as ``diagonal[i] * I₃`` to each vertex
                 block (mass plus drag terms).
         """
+        if self._all_slots is None:
+            raise RuntimeError("this sparsity pattern was retired")
         values = np.concatenate([b.ravel() for b in element_blocks])
         data = np.bincount(self._all_slots, weights=values,
                            minlength=9 * self.block_count).reshape(-1, 3, 3)
         data[self.diagonal_block] += diagonal[:, None, None] * np.eye(3)
         return sp.bsr_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+    def retire(self) -> np.ndarray:
+        """Hand this pattern's slot storage (1-D int64) to a successor (the
+        ``buffer`` argument); this pattern can no longer :meth:`assemble`."""
+        slots, self._all_slots = self._all_slots, None
+        if slots is None:
+            raise RuntimeError("this sparsity pattern was retired already")
+        return slots if slots.base is None else slots.base
 
     @property
     def block_rows(self) -> np.ndarray:
