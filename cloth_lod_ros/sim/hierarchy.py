@@ -275,7 +275,7 @@ class Hierarchy48:
         kids = self.children[np.maximum(parents, 0)].reshape(len(vids), 4)
         kids[np.repeat(parents < 0, 2, axis=1)] = -1
         leaf = np.where(kids >= 0, self.tri_active[np.maximum(kids, 0)], True)
-        ok = leaf.all(axis=1)
+        ok = leaf[:, 0] & leaf[:, 1] & leaf[:, 2] & leaf[:, 3]    # all(axis=1), cheaper
         return vids[ok], kids[ok]
 
     def mergeable_edges(self) -> list[tuple[int, int]]:
