@@ -209,8 +209,9 @@ class LodPolicy:
             young = (np.maximum(np.maximum(births[:, 0], births[:, 1]),
                                 np.maximum(births[:, 2], births[:, 3]))
                      > time - cfg.min_lifetime)
-            ok = ~(blocked[np.searchsorted(vertex_ids, vertices)] | young
-                   | np.isin(vertices, held))
+            is_held = np.zeros(hierarchy.vertex_end, dtype=bool)   # np.isin by a pool mask
+            is_held[np.asarray(held, dtype=np.int64)] = True
+            ok = ~(blocked[np.searchsorted(vertex_ids, vertices)] | young | is_held[vertices])
             if cfg.detail_level > 0 and detail_points is not None and len(detail_points):
                 # Keep grasp neighbourhoods at detail_level: a merge there would
                 # leave parents one level above their children's.
