@@ -40,7 +40,7 @@ import numpy as np
 
 from .forces import Elements, hinge_angles
 from .hierarchy import Hierarchy48, Merge
-from .merge_energy import merge_energy_change, merge_kinetic_change_one
+from .merge_energy import merge_energy_change, merge_kinetic_change
 
 __all__ = ["HingeMeasures", "hinge_measures", "curvature_estimate", "LodPolicy",
            "LodDecision"]
@@ -289,10 +289,9 @@ class LodPolicy:
             if moved.intersection(edge) and decision.merge_energy is not None:
                 # An end's mass or velocity changed: the kinetic part, again.
                 particles = [m, *edge]
-                unit = hierarchy.unit_mass
-                kinetic = merge_kinetic_change_one(
-                    [hierarchy.mass_units.item(p) * unit for p in particles],
-                    hierarchy.v[particles].tolist())
+                kinetic = merge_kinetic_change(
+                    hierarchy.mass_units[particles][None] * hierarchy.unit_mass,
+                    hierarchy.v[particles][None])[0]
                 if (decision.merge_energy[i] - decision.merge_kinetic[i] + kinetic
                         > decision.merge_bound[i]):
                     continue

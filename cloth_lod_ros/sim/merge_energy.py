@@ -40,7 +40,7 @@ import numpy as np
 from .forces import Elements, hinge_angles, hinge_weights, membrane_energies, triangle_maps
 from .hierarchy import Hierarchy48, merge_velocity_change
 
-__all__ = ["MergeEnergy", "merge_energy_change", "merge_kinetic_change", "merge_kinetic_change_one"]
+__all__ = ["MergeEnergy", "merge_energy_change", "merge_kinetic_change"]
 
 
 @dataclass(frozen=True)
@@ -137,33 +137,6 @@ def merge_kinetic_change(masses: np.ndarray, velocities: np.ndarray) -> np.ndarr
     before = m_l * _sq(v_l) + m_r * _sq(v_r) + m_mid * _sq(v_mid)
     after = (m_l + 0.5 * m_mid) * _sq(v_l + change) + (m_r + 0.5 * m_mid) * _sq(v_r + change)
     return 0.5 * (after - before)
-
-
-def merge_kinetic_change_one(masses, velocities) -> float:
-    """:func:`merge_kinetic_change` of one merge, J, bit for bit.
-
-    Args:
-        masses: 3 floats (kg): the removed particle and the two edge ends.
-        velocities: 3 sequences of 3 floats (m/s), same order.
-
-    :meth:`~cloth_lod_ros.sim.lod.LodPolicy.apply` recomputes this one merge
-    at a time; numpy's per-call overhead on ``(1, 3)`` arrays made that ~50 µs.
-    Here every operation is the one the vectorised version does, in the same
-    order, in Python floats, and each squared norm is the same ``einsum`` on a
-    ``(1, 3)`` row (its summation order is numpy's own), so the result is
-    the same number.
-    """
-    m_mid, m_l, m_r = (float(m) for m in masses)
-    v_mid, v_l, v_r = ([float(c) for c in vec] for vec in velocities)
-    ends = m_l + m_r + m_mid
-    change = [m_mid * (c - 0.5 * (p + q)) / ends for c, p, q in zip(v_mid, v_l, v_r)]
-    new_l = [p + d for p, d in zip(v_l, change)]
-    new_r = [q + d for q, d in zip(v_r, change)]
-    rows = np.array([v_l, v_r, v_mid, new_l, new_r])
-    s_l, s_r, s_mid, s_new_l, s_new_r = (_sq(rows[k:k + 1])[0] for k in range(5))
-    before = m_l * s_l + m_r * s_r + m_mid * s_mid
-    after = (m_l + 0.5 * m_mid) * s_new_l + (m_r + 0.5 * m_mid) * s_new_r
-    return float(0.5 * (after - before))
 
 
 def _sq(a: np.ndarray) -> np.ndarray:
