@@ -37,7 +37,10 @@ class HeldInputs:
 
     def _within_mask(self, uv: np.ndarray, radius: float) -> np.ndarray:
         """``(n,)`` bool over the compact particles: :meth:`_within` as a mask."""
-        return np.linalg.norm(self.mesh.uv - uv, axis=1) <= radius + 1e-12
+        # |d| as np.linalg.norm(d, axis=1) computes it (sqrt of d_u² + d_v²),
+        # without its reduction along the length-2 axis.
+        d = self.mesh.uv - uv
+        return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) <= radius + 1e-12
 
     def _refresh_held(self) -> None:
         """After a topology change: renumber what pins and grasps hold, and let a
