@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from cloth_lod_ros.sim.forces import precompute
 from cloth_lod_ros.sim.hierarchy import Hierarchy48
-from cloth_lod_ros.sim.linear import SparsePattern
+from cloth_lod_ros.sim.linear import PatternStorage, SparsePattern
 from cloth_lod_ros.sim.mesh48 import base_mesh, build_hinges
 
 
@@ -72,19 +72,22 @@ def test_build_hinges_of_no_triangles():
                       min_size=2, max_size=6),
        seed=st.integers(0, 2**16))
 def test_pattern_on_retired_storage_equals_fresh(sizes, seed):
-    """A chain of patterns, each built on its predecessor's retired storage (as
-    the solver does at topology changes), equals patterns built fresh, and a
-    retired pattern refuses to assemble."""
+    """A chain of patterns sharing one PatternStorage (each built on its
+    predecessor's retired slots and the shared rank table, as the solver does
+    at topology changes) equals patterns built fresh, and a retired pattern
+    refuses to assemble."""
     rng = np.random.default_rng(seed)
-    previous = None
+    storage, previous = PatternStorage(), None
     for n, tris, hinges in sizes:
         elements = [rng.integers(0, n, (tris, 3)), rng.integers(0, n, (hinges, 4))]
         fresh = SparsePattern(n, elements)
-        buffer = previous.retire() if previous is not None else None
-        reused = SparsePattern(n, elements, buffer=buffer)
+        if previous is not None:
+            previous.retire(storage)
+        reused = SparsePattern(n, elements, storage=storage)
         np.testing.assert_array_equal(reused._all_slots, fresh._all_slots)
         np.testing.assert_array_equal(reused.indices, fresh.indices)
         np.testing.assert_array_equal(reused.indptr, fresh.indptr)
+        np.testing.assert_array_equal(reused.diagonal_block, fresh.diagonal_block)
         blocks = [rng.random((tris, 3, 3, 3, 3)), rng.random((hinges, 4, 3, 4, 3))]
         diagonal = rng.random(n)
         a, b = fresh.assemble(blocks, diagonal), reused.assemble(blocks, diagonal)

@@ -37,7 +37,7 @@ import numpy as np
 
 from .forces import Elements, evaluate
 from .layer_reactions import layer_reactions
-from .linear import Constraints, SparsePattern
+from .linear import Constraints, PatternStorage, SparsePattern
 from .solvers import make_solver
 
 __all__ = ["ImplicitStageSolver", "SolveReport", "StageResult"]
@@ -139,7 +139,7 @@ class ImplicitStageSolver:
         self.backend = make_solver(solver_config.method, solver_config.tolerance,
                                    solver_config.max_iterations, geometry)
         self._pattern: SparsePattern | None = None
-        self._spare_slots: np.ndarray | None = None     # a retired pattern's storage
+        self._pattern_storage = PatternStorage()       # shared by successive patterns
         self.pattern_ms = 0.0
         self._graded = False
         self._uv: np.ndarray | None = None
@@ -158,7 +158,7 @@ class ImplicitStageSolver:
         if self._pattern is not None:
             # Only this solver assembles with its pattern: its storage is
             # reused by the next one (see SparsePattern).
-            self._spare_slots = self._pattern.retire()
+            self._pattern.retire(self._pattern_storage)
         self._pattern = None
         self._warm = {}
         self._evaluated = None
@@ -173,8 +173,7 @@ class ImplicitStageSolver:
         start = _time.perf_counter()
         self._pattern = SparsePattern(elements.vertex_count,
                                       [elements.triangles, elements.hinge_vertices],
-                                      buffer=self._spare_slots)
-        self._spare_slots = None
+                                      storage=self._pattern_storage)
         self.backend.reset_topology(self._pattern, self._uv,
                                     graded=self._graded)
         self.pattern_ms += 1e3 * (_time.perf_counter() - start)
