@@ -222,7 +222,7 @@ def _dot_soa(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _cross_soa(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Column-wise cross product of ``(3, m)`` arrays (rows written in place)."""
-    out = np.empty((3,) + a.shape[1:])
+    out = np.empty((3,) + a.shape[1:], dtype=np.result_type(a, b))
     np.subtract(a[1] * b[2], a[2] * b[1], out=out[0])
     np.subtract(a[2] * b[0], a[0] * b[2], out=out[1])
     np.subtract(a[0] * b[1], a[1] * b[0], out=out[2])

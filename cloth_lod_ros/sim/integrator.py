@@ -157,7 +157,7 @@ class ImplicitStageSolver:
         ``graded``: whether the new mesh mixes levels (the backend's hint)."""
         if self._pattern is not None:
             # Only this solver assembles with its pattern: its storage is
-            # reused by the next one (see SparsePattern).
+            # reused by the next one (see PatternStorage).
             self._pattern.retire(self._pattern_storage)
         self._pattern = None
         self._warm = {}
