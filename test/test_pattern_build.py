@@ -9,12 +9,13 @@ sorted keys without ``np.unique``; both must give what the plain broadcast /
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cloth_lod_ros.sim.forces import precompute
 from cloth_lod_ros.sim.hierarchy import Hierarchy48
-from cloth_lod_ros.sim.linear import SparsePattern
+from cloth_lod_ros.sim.linear import PatternStorage, SparsePattern
 from cloth_lod_ros.sim.mesh48 import base_mesh, build_hinges
 
 
@@ -64,3 +65,34 @@ def test_build_hinges_matches_unique_grouping(seed, refinements):
 def test_build_hinges_of_no_triangles():
     hinges = build_hinges(np.zeros((0, 3), dtype=np.int64), 0)
     assert hinges.edge.shape == (0, 2) and hinges.boundary_edges.shape == (0, 2)
+
+
+@settings(max_examples=30, deadline=None)
+@given(sizes=st.lists(st.tuples(st.integers(1, 30), st.integers(1, 25), st.integers(0, 25)),
+                      min_size=2, max_size=6),
+       seed=st.integers(0, 2**16))
+def test_pattern_on_retired_storage_equals_fresh(sizes, seed):
+    """A chain of patterns sharing one PatternStorage (each built on its
+    predecessor's retired slots and the shared rank table, as the solver does
+    at topology changes) equals patterns built fresh, and a retired pattern
+    refuses to assemble."""
+    rng = np.random.default_rng(seed)
+    storage, previous = PatternStorage(), None
+    for n, tris, hinges in sizes:
+        elements = [rng.integers(0, n, (tris, 3)), rng.integers(0, n, (hinges, 4))]
+        fresh = SparsePattern(n, elements)
+        if previous is not None:
+            previous.retire(storage)
+        reused = SparsePattern(n, elements, storage=storage)
+        np.testing.assert_array_equal(reused._all_slots, fresh._all_slots)
+        np.testing.assert_array_equal(reused.indices, fresh.indices)
+        np.testing.assert_array_equal(reused.indptr, fresh.indptr)
+        np.testing.assert_array_equal(reused.diagonal_block, fresh.diagonal_block)
+        blocks = [rng.random((tris, 3, 3, 3, 3)), rng.random((hinges, 4, 3, 4, 3))]
+        diagonal = rng.random(n)
+        a, b = fresh.assemble(blocks, diagonal), reused.assemble(blocks, diagonal)
+        np.testing.assert_array_equal(a.toarray(), b.toarray())
+        if previous is not None:
+            with pytest.raises(RuntimeError):
+                previous.assemble(blocks, diagonal)
+        previous = reused

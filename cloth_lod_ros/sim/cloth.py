@@ -179,28 +179,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
         if getattr(self, "self_collision", None) is not None:
             self.self_collision.set_topology(self.elements.triangles, self.mesh.uv)
         self._locator = None
-        # A holding patch (pin or grasp) holds the material inside it: particles
-        # that splits made there are held too (else a patch on a coarse mesh
-        # would hold only its first few particles and let the refined cloth
-        # between them flap).
-        x = self.state.positions
-        for pin in getattr(self, "pins", ()):
-            pin.vertex = int(np.searchsorted(self.vertex_ids, pin.node))
-            if pin.radius > 0 and pin.active(self.state.time):
-                inside = self._within(pin.uv, pin.radius)
-                # The policy never merges a held particle; a scripted merge
-                # (apply_mesh_operations) may, and the patch lets it go.
-                keep = np.isin(pin.nodes, inside) | (pin.nodes == pin.node)
-                pin.nodes, pin.offsets = pin.nodes[keep], pin.offsets[keep]
-                new = np.setdiff1d(inside, pin.nodes)
-                if len(new):
-                    pin.hold_more(new, x[np.searchsorted(self.vertex_ids, new)], x[pin.vertex])
-            pin.vertices = np.searchsorted(self.vertex_ids, pin.nodes)
-        for g in getattr(self, "grasps", ()):
-            if g.closed and g.width > 0:
-                new = np.setdiff1d(self._within(g.uv, 0.5 * g.width), g.nodes)
-                if len(new):
-                    g.hold_more(new, x[np.searchsorted(self.vertex_ids, new)])
+        self._refresh_held()
 
     @classmethod
     def from_scene(cls, scene: str | os.PathLike,

@@ -132,8 +132,12 @@ def hinge_weights(edge_length2: np.ndarray, areas: np.ndarray,
         hypotenuse: ``(h, 2)`` whether the edge is that triangle's hypotenuse
             (γ = ½ on such a side, 1 on a leg side, averaged over both).
     """
-    gamma = np.where(hypotenuse, 0.5, 1.0).mean(axis=1)
-    return gamma * edge_length2 / areas.sum(axis=1)
+    # Written out over the two sides: the mean of two of {½, 1} is exact either
+    # way, and a length-2 sum is the one addition; numpy's reductions along a
+    # length-2 axis cost ~10x more than these column operations.
+    hyp_count = hypotenuse[:, 0].astype(float) + hypotenuse[:, 1]
+    gamma = 1.0 - 0.25 * hyp_count
+    return gamma * edge_length2 / (areas[:, 0] + areas[:, 1])
 
 
 def membrane_energies(coef_u: np.ndarray, coef_v: np.ndarray, area: np.ndarray,
@@ -180,8 +184,11 @@ def hinge_angles(x: np.ndarray, hinge_vertices: np.ndarray,
     """
     # Component-major (3, h) arrays: every operation below runs over all hinges
     # in one contiguous loop instead of h loops of length 3 (~30 % faster).
-    xt = x.T
-    e0, e1, o0, o1 = (xt[:, hinge_vertices[:, k]] for k in range(4))
+    # One gather from contiguous (3, n) positions by contiguous (4, h) indices:
+    # gathering columns of the strided x.T with strided index columns cost as
+    # much as the rest of the function.  Pure copies: the same numbers.
+    xt = np.ascontiguousarray(x.T)
+    e0, e1, o0, o1 = np.take(xt, np.ascontiguousarray(hinge_vertices.T), axis=1).swapaxes(0, 1)
     edge = e1 - e0
     to_o0, to_o1 = o0 - e0, o1 - e0
     edge_len2 = _dot_soa(edge, edge)
@@ -214,10 +221,12 @@ def _dot_soa(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _cross_soa(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Column-wise cross product of ``(3, m)`` arrays."""
-    return np.stack([a[1] * b[2] - a[2] * b[1],
-                     a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]])
+    """Column-wise cross product of ``(3, m)`` arrays (rows written in place)."""
+    out = np.empty((3,) + a.shape[1:], dtype=np.result_type(a, b))
+    np.subtract(a[1] * b[2], a[2] * b[1], out=out[0])
+    np.subtract(a[2] * b[0], a[0] * b[2], out=out[1])
+    np.subtract(a[0] * b[1], a[1] * b[0], out=out[2])
+    return out
 
 
 @dataclass

@@ -33,8 +33,50 @@ class HeldInputs:
     def _within(self, uv: np.ndarray, radius: float) -> np.ndarray:
         """Permanent ids (sorted) of the active particles within ``radius`` (m) of
         material point ``uv`` ``(2,)`` (m) in (u, v): a holding patch."""
-        near = np.linalg.norm(self.mesh.uv - uv, axis=1) <= radius + 1e-12
-        return self.vertex_ids[near]
+        return self.vertex_ids[self._within_mask(uv, radius)]
+
+    def _within_mask(self, uv: np.ndarray, radius: float) -> np.ndarray:
+        """``(n,)`` bool over the compact particles: :meth:`_within` as a mask."""
+        # |d| as np.linalg.norm(d, axis=1) computes it (sqrt of d_u² + d_v²),
+        # without its reduction along the length-2 axis.
+        d = self.mesh.uv - uv
+        return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) <= radius + 1e-12
+
+    def _refresh_held(self) -> None:
+        """After a topology change: renumber what pins and grasps hold, and let a
+        holding patch (pin or grasp) take the material inside it.
+
+        Particles that splits made inside a patch are held too (else a patch on
+        a coarse mesh would hold only its first few particles and let the
+        refined cloth between them flap).  The policy never merges a held
+        particle; a scripted merge (``apply_mesh_operations``) may, and the
+        patch lets it go.  Masks over the compact particles instead of
+        ``np.isin``/``np.setdiff1d`` (two sorts per patch at every topology
+        change): the same sets, in the same (increasing) order.
+        """
+        x, ids = self.state.positions, self.vertex_ids
+        for pin in getattr(self, "pins", ()):
+            pin.vertex = int(np.searchsorted(ids, pin.node))
+            if pin.radius > 0 and pin.active(self.state.time):
+                near = self._within_mask(pin.uv, pin.radius)
+                at, present = _compact_index(ids, pin.nodes)
+                keep = (present & near[at]) | (pin.nodes == pin.node)
+                if not keep.all():
+                    pin.nodes, pin.offsets = pin.nodes[keep], pin.offsets[keep]
+                    at, present = at[keep], present[keep]
+                near[at[present]] = False          # held already
+                new = np.flatnonzero(near)
+                if len(new):
+                    pin.hold_more(ids[new], x[new], x[pin.vertex])
+            pin.vertices = np.searchsorted(ids, pin.nodes)
+        for g in getattr(self, "grasps", ()):
+            if g.closed and g.width > 0:
+                near = self._within_mask(g.uv, 0.5 * g.width)
+                at, present = _compact_index(ids, g.nodes)
+                near[at[present]] = False
+                new = np.flatnonzero(near)
+                if len(new):
+                    g.hold_more(ids[new], x[new])
 
     def _resolve_pin_patches(self) -> None:
         """LOD on, at set-up: refine over every pin patch until it has each particle
@@ -188,3 +230,12 @@ class HeldInputs:
             if want != self._scripted_closed[g.name]:
                 self._scripted_closed[g.name] = want
                 (self.close_grasp if want else self.open_grasp)(g.name)
+
+
+def _compact_index(vertex_ids: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Compact indices ``(k,)`` of permanent ids ``nodes`` ``(k,)`` and whether each is
+    active (``vertex_ids`` increasing; an inactive node's index is meaningless)."""
+    if len(vertex_ids) == 0:
+        return np.zeros(len(nodes), dtype=np.int64), np.zeros(len(nodes), dtype=bool)
+    at = np.minimum(np.searchsorted(vertex_ids, nodes), len(vertex_ids) - 1)
+    return at, vertex_ids[at] == nodes

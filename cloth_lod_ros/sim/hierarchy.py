@@ -275,7 +275,7 @@ class Hierarchy48:
         kids = self.children[np.maximum(parents, 0)].reshape(len(vids), 4)
         kids[np.repeat(parents < 0, 2, axis=1)] = -1
         leaf = np.where(kids >= 0, self.tri_active[np.maximum(kids, 0)], True)
-        ok = leaf.all(axis=1)
+        ok = leaf[:, 0] & leaf[:, 1] & leaf[:, 2] & leaf[:, 3]    # all(axis=1), cheaper
         return vids[ok], kids[ok]
 
     def mergeable_edges(self) -> list[tuple[int, int]]:
@@ -312,10 +312,11 @@ class Hierarchy48:
         if level >= self.max_level:
             raise MeshError(f"cannot split {edge}: triangles already at the maximum level")
         m = self._new_vertex()
-        uv, x, v = self.uv, self.x, self.v
-        uv[m] = 0.5 * (uv[left] + uv[right])
-        x[m] = 0.5 * (x[left] + x[right])        # face rule: nothing moves
-        v[m] = 0.5 * (v[left] + v[right])        # keeps momentum
+        # Midpoints in Python floats: the same IEEE sums and halvings as the
+        # numpy row expression 0.5 * (a + b), at half its per-call cost.
+        for rows in (self.uv, self.x, self.v):   # face rule: nothing moves; v keeps momentum
+            a, b = rows[left].tolist(), rows[right].tolist()
+            rows[m] = [0.5 * (p + q) for p, q in zip(a, b)]
         self.mass_units[m] = 0.0
         self.vertex_active[m] = True
         self.vertex_edge[m, 0], self.vertex_edge[m, 1] = left, right
@@ -359,12 +360,16 @@ class Hierarchy48:
         # Momentum: m's mass went back to the edge ends (equally); give both the
         # same velocity change so that Σ m v is unchanged
         # (merge_velocity_change, written out for one merge).
+        # In Python floats, each component with the same operations in the
+        # same order as the numpy row expression (identical results, fewer calls).
         v = self.v
-        change = mass_m * (v[m] - 0.5 * (v[left] + v[right])) / (
-            mass_units.item(left) + mass_units.item(right))
-        if change.any():
-            v[left] += change
-            v[right] += change
+        ends = mass_units.item(left) + mass_units.item(right)
+        v_l, v_r = v[left].tolist(), v[right].tolist()
+        change = [mass_m * (c - 0.5 * (p + q)) / ends
+                  for c, p, q in zip(v[m].tolist(), v_l, v_r)]
+        if any(change):
+            v[left] = [p + d for p, d in zip(v_l, change)]
+            v[right] = [q + d for q, d in zip(v_r, change)]
         self.vertex_active[m] = False
         mass_units[m] = 0.0
         self.vertex_edge[m] = -1

@@ -37,7 +37,7 @@ import numpy as np
 
 from .forces import Elements, evaluate
 from .layer_reactions import layer_reactions
-from .linear import Constraints, SparsePattern
+from .linear import Constraints, PatternStorage, SparsePattern
 from .solvers import make_solver
 
 __all__ = ["ImplicitStageSolver", "SolveReport", "StageResult"]
@@ -139,6 +139,7 @@ class ImplicitStageSolver:
         self.backend = make_solver(solver_config.method, solver_config.tolerance,
                                    solver_config.max_iterations, geometry)
         self._pattern: SparsePattern | None = None
+        self._pattern_storage = PatternStorage()       # shared by successive patterns
         self.pattern_ms = 0.0
         self._graded = False
         self._uv: np.ndarray | None = None
@@ -154,6 +155,10 @@ class ImplicitStageSolver:
         """Forget per-topology caches; with ``elements`` (and the particles' rest
         ``uv`` ``(n, 2)`` m), build the new pattern and set up the backend now.
         ``graded``: whether the new mesh mixes levels (the backend's hint)."""
+        if self._pattern is not None:
+            # Only this solver assembles with its pattern: its storage is
+            # reused by the next one (see PatternStorage).
+            self._pattern.retire(self._pattern_storage)
         self._pattern = None
         self._warm = {}
         self._evaluated = None
@@ -167,7 +172,8 @@ class ImplicitStageSolver:
     def _new_pattern(self, elements: Elements) -> None:
         start = _time.perf_counter()
         self._pattern = SparsePattern(elements.vertex_count,
-                                      [elements.triangles, elements.hinge_vertices])
+                                      [elements.triangles, elements.hinge_vertices],
+                                      storage=self._pattern_storage)
         self.backend.reset_topology(self._pattern, self._uv,
                                     graded=self._graded)
         self.pattern_ms += 1e3 * (_time.perf_counter() - start)

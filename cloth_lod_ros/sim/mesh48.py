@@ -204,34 +204,35 @@ def build_hinges(triangles: np.ndarray, vertex_count: int) -> Hinges:
             (inconsistent orientation).
     """
     t = np.asarray(triangles, dtype=np.int64)
-    tri_count = len(t)
-    # Half-edge k of triangle i runs t[i,k] -> t[i,(k+1)%3]; its opposite is t[i,(k+2)%3].
+    # Half-edge 3i + k runs t[i,k] -> t[i,(k+1)%3]; its opposite is t[i,(k+2)%3].
     start = t.ravel()
-    end = np.roll(t, -1, axis=1).ravel()
-    opp = np.roll(t, -2, axis=1).ravel()
-    tri_of = np.repeat(np.arange(tri_count), 3)
-    # Corner 0 is the apex, so half-edge 1 (left -> right) is the hypotenuse.
-    hyp = np.tile(np.array([False, True, False]), tri_count)
-    lo, hi = np.minimum(start, end), np.maximum(start, end)
-    keys = lo * (vertex_count + 1) + hi
+    end = t[:, [1, 2, 0]].ravel()
+    keys = np.minimum(start, end) * (vertex_count + 1) + np.maximum(start, end)
     order = np.argsort(keys, kind="stable")
     sorted_keys = keys[order]
     # Groups of equal keys, read off the sorted keys (what np.unique with
     # return_index/return_counts gives, without its second sort).
-    group_start = np.flatnonzero(np.concatenate(([len(keys) > 0], sorted_keys[1:] != sorted_keys[:-1])))
-    counts = np.diff(np.append(group_start, len(sorted_keys)))
+    starts = np.empty(len(keys), dtype=bool)
+    starts[:1] = True
+    np.not_equal(sorted_keys[1:], sorted_keys[:-1], out=starts[1:])
+    group_start = np.flatnonzero(starts)
+    counts = np.diff(group_start, append=len(keys))
     if np.any(counts > 2):
         raise MeshError("non-manifold mesh: an edge is shared by more than two triangles")
-    shared = group_start[counts == 2]
+    pair = counts == 2
+    shared = group_start[pair]
     first, second = order[shared], order[shared + 1]
     if np.any(start[first] == start[second]):
         raise MeshError("inconsistent orientation: two triangles traverse an edge the same way")
-    single = order[group_start[counts == 1]]
+    single = order[group_start[~pair]]
+    # Triangle and corner of each side's half-edge, computed for the hinges
+    # only; corner 0 is the apex, so half-edge 1 (left -> right) is the hypotenuse.
+    tri_of, corner = np.divmod(np.column_stack([first, second]), 3)
     return Hinges(
         edge=np.column_stack([start[first], end[first]]),
-        opposite=np.column_stack([opp[first], opp[second]]),
-        triangles=np.column_stack([tri_of[first], tri_of[second]]),
-        is_hypotenuse=np.column_stack([hyp[first], hyp[second]]),
+        opposite=t[tri_of, (corner + 2) % 3],
+        triangles=tri_of,
+        is_hypotenuse=corner == 1,
         boundary_edges=np.column_stack([start[single], end[single]]),
     )
 
