@@ -23,20 +23,18 @@ before it did not suffice:
    inelastic contact.  Held particles and particles resting on an obstacle
    count as infinitely heavy (along the surface only if it has friction), so
    a layer falling onto cloth that lies on a table stops on it.  The other
-   side's particles are kept with the constraint (``partners``): the solve
-   gives them the reaction (:mod:`~cloth_lod_ros.sim.layer_reactions`), so
-   that the layers exchange equal and opposite impulses.  Side B is constrained too (normal ``−n``) only where A cannot give
-   way (held, or on an obstacle) and for pairs found crossing: every vertex
-   near the other layer has its own pair, and forcing a triangle's corners to
-   the velocity of one point of it dragged them and added energy.  The
-   implicit solve then lands each constrained particle at ``thickness`` from
-   the moving surface, releases the contacts that would pull and applies
-   Coulomb friction (``friction``) by rounds, exactly as for obstacles - on
-   the upper side of a contact only (both sides are constrained against each
-   other; with friction on both, both stuck to the pair's velocity at the
-   start of the step and dragged the rest of the cloth along).  A
-   particle with several candidate constraints keeps a crossing pair's, then
-   the tightest (smallest distance); against an obstacle's constraint the
+   side's particles (``partners``) take the reaction
+   (:mod:`~cloth_lod_ros.sim.layer_reactions`): equal and opposite impulses.
+   Side B is constrained too (normal ``−n``) only where A cannot give way
+   (held, or on an obstacle) and for pairs found crossing: forcing a
+   triangle's corners to the velocity of one point of it dragged them and
+   added energy.  The implicit solve lands each constrained particle at
+   ``thickness`` from the moving surface, releases the contacts that would
+   pull and applies Coulomb friction (``friction``) by rounds as for
+   obstacles, on the upper side of a contact only (with friction on both
+   mutually constrained sides, both stuck to the pair's start velocity and
+   dragged the cloth along).  A particle with several candidate constraints
+   keeps a crossing pair's, then the tightest; against an obstacle's the
    obstacle wins unless both push the same way and the self-contact is
    tighter.
 2. **Continuous check and re-solve** (after every solve).  Every vertex–
@@ -51,9 +49,8 @@ before it did not suffice:
    At the smallest step allowed, the particles of the crossing pairs and their
    neighbours are put back where the step started, at rest, and the check is
    repeated with the zone grown until no pair meets (:meth:`SelfCollision.stop_zone`).
-   Since the start was free of crossings, stopping every free particle would
-   always succeed; only held particles (a grasp dragging cloth through cloth)
-   can defeat it, and that is reported.
+   The start was free of crossings, so only held particles (a grasp dragging
+   cloth through cloth) can defeat it, and that is reported.
 
 A scene with ``self_collision.enabled: false`` never calls into this module.
 Positions m, velocities m/s, masses kg.
@@ -140,10 +137,9 @@ class SelfCounters:
 def merge_contacts(obstacle: ContactSet | None, own: ContactSet) -> tuple[ContactSet, int]:
     """One constraint per particle from obstacle and self-contact constraints:
     the obstacle's, unless both push the same way (normals within 90°) and the
-    self-contact is tighter (smaller distance) - and never an obstacle's
-    found inside it (held) for a self-contact the solve may release (the
-    particle was left with no constraint and went on into the obstacle).
-    Returns the merged set and how many of its constraints are self-contacts."""
+    self-contact is tighter (smaller distance) - never a held obstacle
+    contact for a releasable self-contact (the released particle went on into
+    the obstacle).  Returns the merged set and how many of its constraints are self-contacts."""
     if obstacle is None or not len(obstacle):
         return own, len(own)
     if not len(own):
