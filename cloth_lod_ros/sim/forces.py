@@ -70,9 +70,9 @@ class Elements:
         hinge_weight: ``(h,)`` dimensionless ``c_e`` (see module docstring).
         hinge_triangles: ``(h, 2)`` the two triangles of each hinge.
         vertex_count: number of vertices.
-        coef_u_cm, coef_v_cm: ``(3, t)`` contiguous transposes of ``coef_u``,
-            ``coef_v`` (derived; the component-major block computation reads
-            whole rows of them).
+        coef_u_cm, coef_v_cm, triangles_cm: ``(3, t)`` contiguous transposes
+            of ``coef_u``, ``coef_v``, ``triangles`` (derived: the
+            component-major computations read whole rows of them).
     """
 
     triangles: np.ndarray
@@ -85,10 +85,12 @@ class Elements:
     vertex_count: int
     coef_u_cm: np.ndarray = field(init=False, repr=False)
     coef_v_cm: np.ndarray = field(init=False, repr=False)
+    triangles_cm: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
         object.__setattr__(self, "coef_u_cm", np.ascontiguousarray(self.coef_u.T))
         object.__setattr__(self, "coef_v_cm", np.ascontiguousarray(self.coef_v.T))
+        object.__setattr__(self, "triangles_cm", np.ascontiguousarray(self.triangles.T))
 
 
 def precompute(mesh: RestMesh) -> Elements:
@@ -169,15 +171,6 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...i->...", a, b)
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of ``(m, 3)`` arrays (np.cross is ~5x slower here)."""
-    out = np.empty_like(a)
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    return out
-
-
 def hinge_angles(x: np.ndarray, hinge_vertices: np.ndarray,
                  with_gradient: bool = False):
     """Signed dihedral angles θ (rad) of the hinges, and optionally ∂θ/∂x.
@@ -227,6 +220,13 @@ def hinge_angles(x: np.ndarray, hinge_vertices: np.ndarray,
 def _dot_soa(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Column-wise dot product of ``(3, m)`` arrays."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _dot_soa_02(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`_dot_soa` summed as ``(a₀b₀ + a₂b₂) + a₁b₁``: the order in which
+    ``np.einsum`` sums a length-3 axis (numpy 2.4, measured), so that the air's
+    component-major terms equal the former ``(t, 3)`` einsum code bit for bit."""
+    return (a[0] * b[0] + a[2] * b[2]) + a[1] * b[1]
 
 
 def _cross_soa(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -301,12 +301,11 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
 
     # Membrane terms on component-major (3, t) arrays: each operation is one
     # contiguous loop over all triangles (not t loops of length 3).
-    px, pv = x.T, v.T                                       # (3, n) views
-    corners = [tri[:, k] for k in range(3)]
-    cu0, cu1, cu2 = cu[:, 0], cu[:, 1], cu[:, 2]
-    cv0, cv1, cv2 = cv[:, 0], cv[:, 1], cv[:, 2]
-    x0, x1, x2 = (px[:, c] for c in corners)
-    v0, v1, v2 = (pv[:, c] for c in corners)
+    cu0, cu1, cu2 = elements.coef_u_cm
+    cv0, cv1, cv2 = elements.coef_v_cm
+    corners_x, corners_v = _corners(elements, x), _corners(elements, v)
+    x0, x1, x2 = corners_x
+    v0, v1, v2 = corners_v
     wu = cu0 * x0 + cu1 * x1 + cu2 * x2                     # (3, t)
     wv = cv0 * x0 + cv1 * x1 + cv2 * x2
     wu_dot = cu0 * v0 + cu1 * v1 + cu2 * v2
@@ -358,7 +357,8 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
         cK, cD = stiffness_weight, damping_weight
         air_face = None
         if air is not None:
-            air_force, air_face = _air_face_terms(elements, air, x, v, damping_weight, True)
+            air_force, air_face = _air_face_terms(elements, air, corners_x, corners_v,
+                                                  damping_weight, True)
             force += air_force
         tri_blocks = _membrane_blocks(
             elements, ks * area * (cK + cD * bs), ks * area * cK, ((cK + cD * bsh) * ksh) * area,
@@ -367,7 +367,7 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
         scaled = ((cK + cD * bb) * kb * weight)[:, None] * g              # (h, 12)
         hinge_blocks = (scaled[:, :, None] * g[:, None, :]).reshape(len(g), 4, 3, 4, 3)
     elif air is not None:
-        force += _air_face_terms(elements, air, x, v, damping_weight, False)[0]
+        force += _air_face_terms(elements, air, corners_x, corners_v, damping_weight, False)[0]
 
     strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
     return Evaluation(
@@ -468,7 +468,8 @@ def air_forces(elements: Elements, air, x: np.ndarray, v: np.ndarray,
         ``(force (n, 3) N, blocks (t, 3, 3, 3, 3) or None)``, blocks laid out as
         :attr:`Evaluation.triangle_blocks`.
     """
-    force, face = _air_face_terms(elements, air, x, v, damping_weight, with_blocks)
+    force, face = _air_face_terms(elements, air, _corners(elements, x), _corners(elements, v),
+                                  damping_weight, with_blocks)
     if face is None:
         return force, None
     face = face.transpose(2, 0, 1)                                    # (t, 3, 3)
@@ -476,35 +477,45 @@ def air_forces(elements: Elements, air, x: np.ndarray, v: np.ndarray,
                                   (len(face), 3, 3, 3, 3)).copy()
 
 
-def _air_face_terms(elements: Elements, air, x: np.ndarray, v: np.ndarray,
+def _corners(elements: Elements, x: np.ndarray) -> np.ndarray:
+    """Corner positions (or velocities) ``(3 corners, 3 components, t)`` of the
+    triangles from ``x`` ``(n, 3)``: one gather from contiguous ``(3, n)`` data
+    by the contiguous ``(3, t)`` index (gathering columns of the strided
+    ``x.T`` with strided index columns cost several times more).  Pure copies."""
+    return np.take(np.ascontiguousarray(x.T), elements.triangles_cm, axis=1).swapaxes(0, 1)
+
+
+def _air_face_terms(elements: Elements, air, corners_x: np.ndarray, corners_v: np.ndarray,
                     damping_weight: float, with_blocks: bool):
-    """:func:`air_forces` with each face's block as one 3 × 3 matrix (it is the
-    same for all nine corner pairs), component-major ``(3, 3, t)``, or None
-    without blocks."""
+    """:func:`air_forces` from :func:`_corners` of x and v, with each face's
+    block as one 3 × 3 matrix (it is the same for all nine corner pairs),
+    component-major ``(3, 3, t)``, or None without blocks."""
     tri = elements.triangles
     n_vertices = elements.vertex_count
     coefficient = 0.5 * air.density * air.drag_coefficient
     if coefficient == 0.0 or not len(tri):
         face = np.zeros((3, 3, len(tri))) if with_blocks else None
         return np.zeros((n_vertices, 3)), face
-    xt = x[tri]
-    cross = _cross(xt[:, 1] - xt[:, 0], xt[:, 2] - xt[:, 0])      # |cross| = 2 A
-    twice_area = np.sqrt(_dot(cross, cross))
-    normal = cross / np.maximum(twice_area, np.finfo(float).tiny)[:, None]  # 0 if collapsed
-    vt = v[tri]
-    # The corners' mean velocity (an explicit sum: np.mean over an axis of
-    # three is several times slower), relative to the wind.
-    v_rel = (vt[:, 0] + vt[:, 1] + vt[:, 2]) / 3.0 - np.asarray(air.wind, dtype=float)
-    v_n = _dot(normal, v_rel)
+    # Component-major (3, t): one contiguous loop over the faces per operation.
+    x0, x1, x2 = corners_x
+    cross = _cross_soa(x1 - x0, x2 - x0)                             # |cross| = 2 A
+    twice_area = np.sqrt(_dot_soa_02(cross, cross))
+    normal = cross / np.maximum(twice_area, np.finfo(float).tiny)    # 0 if collapsed
+    # The corners' mean velocity, relative to the wind.
+    v_rel = (corners_v[0] + corners_v[1] + corners_v[2]) / 3.0 \
+        - np.asarray(air.wind, dtype=float)[:, None]
+    v_n = _dot_soa_02(normal, v_rel)
     k = coefficient * 0.5 * twice_area                               # ½ ρ C_d A, kg/m
-    corner = (-k * np.abs(v_n) * v_n / 3.0)[:, None] * normal       # N, each corner
-    force = _scatter(tri, np.repeat(corner[:, None, :], 3, axis=1), n_vertices)
+    corner = (-k * np.abs(v_n) * v_n / 3.0) * normal                 # N, each corner
+    flat = tri.ravel()
+    force = np.empty((n_vertices, 3))
+    for d in range(3):      # the same weights in the same (face, corner) order as _scatter
+        force[:, d] = np.bincount(flat, weights=np.repeat(corner[d], 3), minlength=n_vertices)
     blocks = None
     if with_blocks:
         # −∂f_i/∂v_j = (2 k |v_n| / 9) n nᵀ for every corner pair (i, j).
-        normal_cm = np.ascontiguousarray(normal.T)                   # (3, t)
         blocks = (damping_weight * 2.0 * k * np.abs(v_n) / 9.0) \
-            * normal_cm[:, None, :] * normal_cm[None, :, :]           # (3, 3, t)
+            * normal[:, None, :] * normal[None, :, :]                 # (3, 3, t)
     return force, blocks
 
 
