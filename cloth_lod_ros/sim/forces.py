@@ -365,7 +365,9 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
             (dir_u, tens_u, wv), (dir_v, tens_v, wu), air_face)
         g = grad_b.reshape(len(grad_b), 12)
         scaled = ((cK + cD * bb) * kb * weight)[:, None] * g              # (h, 12)
-        hinge_blocks = (scaled[:, :, None] * g[:, None, :]).reshape(len(g), 4, 3, 4, 3)
+        # einsum's outer product: the same single products as broadcasting
+        # (h, 12, 1) × (h, 1, 12), ~1.6x faster (that loops over rows of 12).
+        hinge_blocks = np.einsum("hi,hj->hij", scaled, g).reshape(len(g), 4, 3, 4, 3)
     elif air is not None:
         force += _air_face_terms(elements, air, corners_x, corners_v, damping_weight, False)[0]
 
@@ -393,9 +395,9 @@ def _membrane_blocks(elements: Elements, along: np.ndarray, across_scale: np.nda
     Q per triangle, then ``R_p[j] = Σ_q c_q[j] Q_pq`` and
     ``B[i, j] = Σ_p c_p[i] R_p[j]`` (+ the air's face block, the same for all
     nine corner pairs).  Every operation runs over all triangles in one
-    contiguous loop on component-major ``(…, t)`` arrays, and one transposing
-    copy makes the element-major result (the layout whose assembly sums in
-    element order; see linear.SparsePattern): batched 3 × 3 matmuls over
+    contiguous loop on component-major ``(…, t)`` arrays, the last one
+    storing into the element-major result (the layout whose assembly sums in
+    element order, see linear.SparsePattern): batched 3 × 3 matmuls over
     ``(t, …)`` arrays cost ~4x more.
 
     Args:
@@ -425,12 +427,19 @@ def _membrane_blocks(elements: Elements, along: np.ndarray, across_scale: np.nda
     for j in range(3):
         np.add(cu[j] * q_uu, cv[j] * q_uv, out=reduced[0, j])
         np.add(cu[j] * q_vu, cv[j] * q_vv, out=reduced[1, j])
-    blocks = np.empty((3, 3, 3, 3, t_count))                            # [i, j, a, b, t]
+    blocks = np.empty((t_count, 3, 3, 3, 3))                            # [t, i, a, j, b]
+    # Written through an [i, j, a, b, t] view: the last operation of each row
+    # stores into the element-major result directly, its inner loop running
+    # over t (a transposing copy afterwards loops over rows of 3: ~4x slower).
+    by_row = blocks.transpose(1, 3, 2, 4, 0)
     for i in range(3):
-        np.add(cu[i] * reduced[0], cv[i] * reduced[1], out=blocks[i])
-        if air_face is not None:
-            blocks[i] += air_face
-    return np.ascontiguousarray(blocks.transpose(4, 0, 2, 1, 3))        # [t, i, a, j, b]
+        row = cu[i] * reduced[0]
+        row += cv[i] * reduced[1]
+        if air_face is None:
+            by_row[i] = row
+        else:
+            np.add(row, air_face, out=by_row[i])
+    return blocks
 
 
 def air_forces(elements: Elements, air, x: np.ndarray, v: np.ndarray,
