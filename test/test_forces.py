@@ -257,3 +257,35 @@ def test_system_matrix_is_symmetric_positive_definite(seed, stretch, noise):
     # Symmetric up to the summation order of the assembly.
     np.testing.assert_allclose(system, system.T, rtol=0, atol=1e-14 * np.abs(system).max())
     assert np.linalg.eigvalsh(system).min() >= mass * (1 - 1e-9)
+
+
+def test_derived_rest_data_follows_each_topology_and_blocks_match_outer_products():
+    """Elements' component-major copies (used by evaluate's per-topology fast
+    paths) are rebuilt with every topology, and the membrane blocks built from
+    them equal the plain sum of outer products Σ_pq c_p[i] c_q[j] Q_pq."""
+    from cloth_lod_ros.sim.forces import _membrane_blocks
+    rng = np.random.default_rng(5)
+    for mesh in (mesh_at(0, blocks=(2, 2)), mesh_at(2, blocks=(2, 2)), mesh_at(1, 1.5, 1.0, (3, 2))):
+        el = precompute(mesh)
+        for derived, source in ((el.coef_u_cm, el.coef_u), (el.coef_v_cm, el.coef_v),
+                                (el.triangles_cm, el.triangles)):
+            assert derived.flags.c_contiguous
+            np.testing.assert_array_equal(derived, source.T)
+        t = len(el.triangles)
+        along, across, shear = rng.uniform(0.5, 2.0, (3, t))
+        du, dv, wu, wv = rng.normal(size=(4, 3, t))
+        tu, tv = rng.uniform(0, 1, (2, t))
+        air = rng.normal(size=(3, 3, t))
+        blocks = _membrane_blocks(el, along, across, shear, (du, tu, wv), (dv, tv, wu), air)
+        eye = np.eye(3)
+        q = {}
+        for p, (d, ten, other) in enumerate(((du, tu, wv), (dv, tv, wu))):
+            q[p, p] = np.einsum("t,at,bt->tab", along - across * ten, d, d) \
+                + np.einsum("t,ab->tab", across * ten, eye) \
+                + np.einsum("t,at,bt->tab", shear, other, other)
+        q[0, 1] = np.einsum("t,at,bt->tab", shear, wv, wu)
+        q[1, 0] = q[0, 1].transpose(0, 2, 1)
+        c = (el.coef_u, el.coef_v)
+        expect = sum(np.einsum("ti,tj,tab->tiajb", c[p], c[r], q[p, r])
+                     for p in range(2) for r in range(2)) + air.transpose(2, 0, 1)[:, None, :, None, :]
+        np.testing.assert_allclose(blocks, expect, rtol=1e-12, atol=1e-12)
