@@ -84,6 +84,37 @@ def test_the_projected_system_keeps_the_pattern_and_is_spd():
     assert np.linalg.eigvalsh(dense).min() > 0
 
 
+def test_the_projected_system_equals_its_definition():
+    """Â = S A S + (I − S) D (I − S) and b̂ = S (b − A z), densely, for fully held,
+    sliding (tilted normals) and free particles, one particle listed twice."""
+    matrix, rhs, pattern, mesh = system(3)
+    rng = np.random.default_rng(3)
+    n = mesh.vertex_count
+    held = rng.choice(n, size=12, replace=False)
+    normals = rng.normal(size=(6, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    projectors = np.concatenate([np.zeros((6, 3, 3)),
+                                 np.eye(3) - normals[:, :, None] * normals[:, None, :],
+                                 np.zeros((1, 3, 3))])
+    indices = np.concatenate([held, held[:1]])      # the last entry of held[0] wins
+    constraints = Constraints(indices, projectors, rng.normal(size=(13, 3)))
+    projected, b, z = project_system(matrix, rhs, constraints, pattern)
+    s = np.eye(3 * n)
+    for i, p in zip(indices, projectors):
+        s[3 * i:3 * i + 3, 3 * i:3 * i + 3] = p
+    a = matrix.toarray()
+    d = np.zeros_like(a)
+    for i in range(n):
+        d[3 * i:3 * i + 3, 3 * i:3 * i + 3] = a[3 * i:3 * i + 3, 3 * i:3 * i + 3]
+    c = np.eye(3 * n) - s
+    scale = np.abs(a).max()
+    np.testing.assert_allclose(projected.toarray(), s @ a @ s + c @ d @ c, atol=1e-13 * scale)
+    np.testing.assert_allclose(b.ravel(), s @ (rhs.ravel() - a @ z.ravel()),
+                               atol=1e-13 * scale * (1 + np.abs(z).max()))
+    np.testing.assert_allclose(s @ z.ravel(), 0.0, atol=1e-15)      # z: held directions only
+    np.testing.assert_allclose(z[held[0]], constraints.prescribed[-1], atol=0)
+
+
 def test_the_factorisation_is_analysed_once_per_topology(monkeypatch):
     if "direct" not in solvers.available_methods():
         pytest.skip("qdldl is a dependency of the package; this only runs without it")

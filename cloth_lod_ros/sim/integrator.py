@@ -37,7 +37,7 @@ import numpy as np
 
 from .forces import Elements, evaluate
 from .layer_reactions import layer_reactions
-from .linear import Constraints, PatternStorage, SparsePattern
+from .linear import Constraints, PatternStorage, SparsePattern, bsr_product
 from .solvers import make_solver
 
 __all__ = ["ImplicitStageSolver", "SolveReport", "StageResult"]
@@ -336,7 +336,7 @@ class ImplicitStageSolver:
                 # the reactions of layer contacts on the other layer's particles.
                 impulse = np.zeros_like(velocities) if transfer is None else transfer.copy()
                 rows = contacts.indices
-                impulse[rows] = ((matrix @ dv.ravel()).reshape(-1, 3) - residual)[rows]
+                impulse[rows] = (bsr_product(matrix, dv) - residual)[rows]
             stage_report = SolveReport(result.iterations, result.residual, result.converged,
                                        force_ms, assembly_ms, solve_ms, solves=0,
                                        newton_iterations=1)
@@ -426,7 +426,7 @@ class ImplicitStageSolver:
             self._keep_warm_start(result.dv)       # warm start for the next round
             if attempt == rounds - 1:
                 break
-            reaction = ((matrix @ result.dv.ravel()).reshape(-1, 3) - step_rhs)[contacts.indices]
+            reaction = (bsr_product(matrix, result.dv) - step_rhs)[contacts.indices]
             normal_reaction = np.einsum("kd,kd->k", reaction, normals)
             pulling = (normal_reaction < 0.0) & ~contacts.hold
             if pulling.any() and attempt == 0:

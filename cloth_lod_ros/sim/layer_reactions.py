@@ -52,6 +52,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .linear import bsr_product
+
 __all__ = ["common_velocity", "layer_reactions", "receivers", "spread"]
 
 
@@ -107,7 +109,7 @@ def layer_reactions(matrix, rhs, v, dv, contacts, held, masses, sliding, frictio
     if takes is None:
         return None, None
     rows, normals = contacts.indices, contacts.normals
-    reaction = ((matrix @ dv.ravel()).reshape(-1, 3) - rhs)[rows]
+    reaction = (bsr_product(matrix, dv) - rhs)[rows]
     normal_reaction = np.einsum("kd,kd->k", reaction, normals)
     load = np.maximum(normal_reaction - masses[rows] * relative_vn, 0.0)
     along = np.where(sliding[:, None], friction_impulse,

@@ -22,11 +22,13 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 try:        # the compiled kernel behind scipy's CSR products (see CsrOperator)
+    from scipy.sparse._sparsetools import bsr_matvec as _bsr_matvec
     from scipy.sparse._sparsetools import csr_matvec as _csr_matvec
 except ImportError:             # pragma: no cover - a scipy without it
-    _csr_matvec = None
+    _bsr_matvec = _csr_matvec = None
 
-__all__ = ["CsrOperator", "SparsePattern", "PatternStorage", "Constraints", "SolveResult", "filtered_pcg", "project_system",
+__all__ = ["CsrOperator", "SparsePattern", "PatternStorage", "Constraints", "SolveResult",
+           "filtered_pcg", "project_system", "projected_data", "bsr_product",
            "relative_residual", "solve_projected_direct", "block_diagonal_matrix"]
 
 
@@ -317,7 +319,7 @@ def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
         direction = s + (delta / delta_old) * direction
         iterations += 1
     dv = dv.reshape(n, 3)
-    true_residual = constraints.filter(rhs - (matrix @ dv.ravel()).reshape(n, 3))
+    true_residual = constraints.filter(rhs - bsr_product(matrix, dv))
     rel = float(np.linalg.norm(true_residual)) / rhs_norm if rhs_norm > 0 else 0.0
     return SolveResult(dv=dv, iterations=iterations, residual=rel,
                        converged=rel <= tolerance)
@@ -344,6 +346,11 @@ def project_system(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
     A's sparsity pattern (explicit zeros included): a factorisation's symbolic
     analysis stays valid for the whole topology.
 
+    A fully held particle (``S_i = 0``: pins, sticking contacts, most of the
+    constraints) zeroes its row and column and keeps its diagonal block, so
+    only blocks between partly held particles (sliding contacts) and their
+    neighbours need the 3 × 3 products (BW §5.3).
+
     Args:
         matrix: A, BSR with 3 × 3 blocks (every diagonal block stored).
         rhs: ``(n, 3)`` b.  constraints: S and z.
@@ -353,6 +360,15 @@ def project_system(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
     Returns:
         ``(Â as BSR, b̂ (n, 3), z (n, 3))``.
     """
+    data, b, z = projected_data(matrix, rhs, constraints, pattern)
+    projected = sp.bsr_matrix((data, matrix.indices, matrix.indptr), shape=matrix.shape)
+    return projected, b, z
+
+
+def projected_data(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constraints,
+                   pattern: SparsePattern | None = None):
+    """:func:`project_system` without building the BSR matrix: ``(Â's data
+    (blocks, 3, 3) on A's pattern, b̂ (n, 3), z (n, 3))``."""
     n = rhs.shape[0]
     z = constraints.start(np.zeros_like(rhs))
     data = matrix.data.copy()
@@ -362,31 +378,55 @@ def project_system(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
         last = len(constraints.indices) - 1 - np.unique(constraints.indices[::-1],
                                                         return_index=True)[1]
         indices, filters = constraints.indices[last], constraints.projectors[last]
-        held = np.zeros(n, dtype=bool)
-        held[indices] = True
-        projectors = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-        projectors[indices] = filters
+        zero = np.zeros(n, dtype=bool)
+        partial = np.zeros(n, dtype=bool)
+        is_zero = ~filters.reshape(-1, 9).any(axis=1)
+        zero[indices[is_zero]] = True
+        partial[indices[~is_zero]] = True
         cols = matrix.indices
         if pattern is not None:
             rows, diagonal_block = pattern.block_rows, pattern.diagonal_block
         else:
             rows = np.repeat(np.arange(n), np.diff(matrix.indptr))
             diagonal_block = np.flatnonzero(rows == cols)       # one per row, in row order
-        touched = np.flatnonzero(held[rows] | held[cols])
-        data[touched] = projectors[rows[touched]] @ matrix.data[touched] \
-            @ projectors[cols[touched]]
-        diagonal = diagonal_block[indices]
-        complement = np.eye(3) - filters
-        data[diagonal] += complement @ matrix.data[diagonal] @ complement
-        b = constraints.filter(rhs - (matrix @ z.ravel()).reshape(n, 3))
-    projected = sp.bsr_matrix((data, matrix.indices, matrix.indptr), shape=matrix.shape)
-    return projected, b, z
+        # Blocks in a fully held row or column vanish (their diagonal block is
+        # put back below: (I − 0) D (I − 0) = D).
+        data[zero[rows] | zero[cols]] = 0.0
+        full_diagonal = diagonal_block[indices[is_zero]]
+        data[full_diagonal] = matrix.data[full_diagonal]
+        if partial.any():
+            projectors = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+            projectors[indices[~is_zero]] = filters[~is_zero]
+            mixed = np.flatnonzero((partial[rows] | partial[cols])
+                                   & ~(zero[rows] | zero[cols]))
+            data[mixed] = projectors[rows[mixed]] @ matrix.data[mixed] \
+                @ projectors[cols[mixed]]
+            diagonal = diagonal_block[indices[~is_zero]]
+            complement = np.eye(3) - filters[~is_zero]
+            data[diagonal] += complement @ matrix.data[diagonal] @ complement
+        b = constraints.filter(rhs - bsr_product(matrix, z))
+    return data, b, z
+
+
+def bsr_product(matrix: sp.bsr_matrix, x: np.ndarray) -> np.ndarray:
+    """``A x`` for a BSR matrix with 3 × 3 blocks and ``x`` ``(n, 3)``, returned
+    ``(n, 3)``: scipy's compiled kernel without its per-call checks (which cost
+    as much as the product at a few thousand unknowns; cf. :class:`CsrOperator`).
+    Any other matrix is multiplied the ordinary way."""
+    if _bsr_matvec is None or getattr(matrix, "blocksize", None) != (3, 3) \
+            or matrix.format != "bsr" or matrix.data.dtype != np.float64:
+        return (matrix @ x.ravel()).reshape(-1, 3)
+    n_rows = matrix.shape[0] // 3
+    y = np.zeros(3 * n_rows)
+    _bsr_matvec(n_rows, matrix.shape[1] // 3, 3, 3, matrix.indptr, matrix.indices,
+                matrix.data.ravel(), np.ascontiguousarray(x, dtype=np.float64).ravel(), y)
+    return y.reshape(-1, 3)
 
 
 def relative_residual(matrix, rhs: np.ndarray, constraints: Constraints,
                       dv: np.ndarray) -> float:
     """``|S(b − A Δv)| / |S b|`` (0 if ``S b`` = 0): the measure every backend reports."""
-    residual = constraints.filter(rhs - (matrix @ dv.ravel()).reshape(-1, 3))
+    residual = constraints.filter(rhs - bsr_product(matrix, dv))
     norm_b = float(np.linalg.norm(constraints.filter(rhs)))
     return float(np.linalg.norm(residual)) / norm_b if norm_b > 0 else 0.0
 

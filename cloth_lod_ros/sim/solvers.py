@@ -35,7 +35,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from .linear import (Constraints, SolveResult, SparsePattern, block_diagonal_matrix,
-                     filtered_pcg, project_system, relative_residual, solve_projected_direct)
+                     filtered_pcg, project_system, projected_data, relative_residual,
+                     solve_projected_direct)
 from .multigrid import VCycle, block_transfers, lattice_hierarchy
 
 __all__ = ["LinearSolver", "make_solver", "METHODS", "available_methods"]
@@ -178,11 +179,11 @@ class LdlDirect(LinearSolver):
         return order, rows[keep].astype(np.int32), col_ptr
 
     def solve(self, matrix, rhs, constraints, guess):
-        projected, b, z = project_system(matrix, rhs, constraints, self.pattern)
+        data, b, z = projected_data(matrix, rhs, constraints, self.pattern)
         if self._upper is None:
-            self._upper = self._upper_layout(projected)
+            self._upper = self._upper_layout(matrix)       # Â has A's pattern
         order, indices, indptr = self._upper
-        self._numeric(projected.data.ravel()[order], indices, indptr, projected.shape)
+        self._numeric(data.ravel()[order], indices, indptr, matrix.shape)
         y = self._backsolve(b.ravel()).reshape(-1, 3)
         dv = z + constraints.filter(y)
         rel = relative_residual(matrix, rhs, constraints, dv)
