@@ -178,14 +178,16 @@ def _coarse_points(p, fine):
 
 
 def _factorisation() -> str:
-    """What ``auto`` factorises with: CHOLMOD if installed, else QDLDL, else PCG."""
+    """What ``auto`` factorises with: CHOLMOD if installed, else the block
+    LDLᵀ, else QDLDL, else PCG."""
     available = solvers.available_methods()
-    return next((m for m in ("cholmod", "direct") if m in available), "pcg")
+    return next((m for m in ("cholmod", "block_ldl", "direct") if m in available), "pcg")
 
 
 def test_auto_factorises_small_systems_and_uses_multigrid_on_large_ones():
     small = ClothSim.from_scene("hang_two_corners")                       # adaptive, ~200 particles
-    large = ClothSim.from_scene("hang_two_corners", ["lod.enabled=false", "cloth.level=6"])
+    # Uniform L7 (2,113 particles) is above every factorisation's uniform limit.
+    large = ClothSim.from_scene("hang_two_corners", ["lod.enabled=false", "cloth.level=7"])
     assert small.step().solver == _factorisation()
     assert large.step().solver == "multigrid"
 
@@ -216,7 +218,7 @@ def test_every_solve_of_a_step_is_counted_and_timed(monkeypatch):
     assert several > 0
 
 
-@pytest.mark.parametrize("method", ["pcg", "multigrid", "direct", "cholmod", "superlu"])
+@pytest.mark.parametrize("method", ["pcg", "multigrid", "direct", "block_ldl", "cholmod", "superlu"])
 def test_backends_agree_over_a_run_within_the_tolerance(method):
     """The same steps with each backend: trajectories within what the solver
     tolerance allows (1e-4 relative: sub-millimetre over a short swing)."""
@@ -233,26 +235,33 @@ def test_backends_agree_over_a_run_within_the_tolerance(method):
 
 
 def test_auto_factorises_larger_graded_meshes_than_uniform_ones():
-    """``auto`` picks LDLᵀ up to AUTO_DIRECT_LIMIT particles on a uniform mesh
-    and up to AUTO_DIRECT_LIMIT_GRADED on a graded one (where the lattice
-    V-cycle is weaker), multigrid above; and says which ran."""
-    from cloth_lod_ros.sim.solvers import AUTO_DIRECT_LIMIT, AUTO_DIRECT_LIMIT_GRADED
-    if "direct" not in solvers.available_methods():
-        pytest.skip("qdldl not installed")
-    mesh = refine_uniform(base_mesh(1.0, 1.0, 4, 4), 5)         # 545 particles
-    el = precompute(mesh)
-    pattern = SparsePattern(mesh.vertex_count, [el.triangles, el.hinge_vertices])
-    assert mesh.vertex_count <= AUTO_DIRECT_LIMIT
-    bigger = refine_uniform(base_mesh(1.0, 1.0, 4, 4), 6)      # 1,089 particles
-    big_el = precompute(bigger)
-    big_pattern = SparsePattern(bigger.vertex_count, [big_el.triangles, big_el.hinge_vertices])
-    assert AUTO_DIRECT_LIMIT < bigger.vertex_count <= AUTO_DIRECT_LIMIT_GRADED
+    """``auto`` picks its factorisation up to that backend's uniform limit and
+    up to its graded limit on a graded mesh (where the lattice V-cycle is
+    weaker), multigrid above; and says which ran."""
     auto = make_solver("auto", 1e-6, 1000, geometry=(1.0, 1.0, 0.25))
-    auto.reset_topology(pattern, mesh.uv)
+    uniform_limit, graded_limit = auto.limits
+    if _factorisation() == "pcg":
+        pytest.skip("no factorisation installed")
+    # Uniform levels: 4 -> 289, 5 -> 545, 6 -> 1,089, 7 -> 2,113 particles.
+    counts = {level: (2 ** (level // 2 + 2) + 1) ** 2 if level % 2 == 0
+              else (2 ** (level // 2 + 2) + 1) ** 2 + (2 ** (level // 2 + 2)) ** 2
+              for level in range(4, 8)}
+    small = max(level for level, c in counts.items() if c <= uniform_limit)
+    middle = min(level for level, c in counts.items() if c > uniform_limit)
+    assert counts[middle] <= graded_limit
+
+    def topology(level):
+        mesh = refine_uniform(base_mesh(1.0, 1.0, 4, 4), level)
+        assert mesh.vertex_count == counts[level]
+        el = precompute(mesh)
+        return SparsePattern(mesh.vertex_count, [el.triangles, el.hinge_vertices]), mesh.uv
+
+    auto.reset_topology(*topology(small))
     assert auto.name == _factorisation()
-    auto.reset_topology(big_pattern, bigger.uv)
+    bigger = topology(middle)
+    auto.reset_topology(*bigger)
     assert auto.name == "multigrid"
-    auto.reset_topology(big_pattern, bigger.uv, graded=True)
+    auto.reset_topology(*bigger, graded=True)
     assert auto.name == _factorisation()
 
 

@@ -243,13 +243,14 @@ class SimulationConfig:
 
 @dataclass(frozen=True)
 class SolverConfig:
-    method: str = _spec("str", choices=("auto", "pcg", "multigrid", "direct", "cholmod",
-                                          "superlu"),
+    method: str = _spec("str", choices=("auto", "pcg", "multigrid", "direct", "block_ldl",
+                                          "cholmod", "superlu"),
                         default="auto",
                         doc="auto: direct on small systems, multigrid on large ones; pcg: "
                             "filtered block-Jacobi PCG (the paper's); multigrid: filtered CG "
                             "with a lattice V-cycle; direct: LDL^T (QDLDL), analysed once per "
-                            "topology; cholmod: the same with CHOLMOD (optional extra, cvxopt); "
+                            "topology; block_ldl: LDL^T on 3x3 blocks compiled with numba; "
+                            "cholmod: the same with CHOLMOD (optional extra, cvxopt); "
                             "superlu: SuperLU, re-analysed every solve (baseline)")
     tolerance: float = _spec("float", "", gt=0, le=0.5, default=1e-4,
                              doc="relative residual in the preconditioned norm")
