@@ -82,6 +82,7 @@ def _membrane(tri, cu, cv, area, x, v, ks, ksh, bs, bsh, c_k, c_d, air_coef, win
     """
     t_count = tri.shape[0]
     q = np.empty((4, 3, 3))         # Q_uu, Q_uv, Q_vu, Q_vv of one triangle
+    reduced = np.empty((2, 3, 3, 3))   # R[p, j, a, b]
     face = np.zeros((3, 3))         # the air's block (the same for all nine corner pairs)
     wu = np.empty(3)
     wv = np.empty(3)
@@ -201,19 +202,25 @@ def _membrane(tri, cu, cv, area, x, v, ks, ksh, bs, bsh, c_k, c_d, air_coef, win
         for a in range(3):
             for b in range(3):
                 q[2, a, b] = q[1, b, a]
+        # R_p[j] = Σ_q c_q[j] Q_pq, then B[i, j] = Σ_p c_p[i] R_p[j] + the air's.
+        for j in range(3):
+            cuj, cvj = cu[e, j], cv[e, j]
+            for a in range(3):
+                for b in range(3):
+                    reduced[0, j, a, b] = cuj * q[0, a, b] + cvj * q[1, a, b]
+                    reduced[1, j, a, b] = cuj * q[2, a, b] + cvj * q[3, a, b]
         for i in range(3):
             cui, cvi = cu[e, i], cv[e, i]
-            for a in range(3):
-                for j in range(3):
-                    cuj, cvj = cu[e, j], cv[e, j]
+            for j in range(3):
+                start = 0 if mode == 1 else slots[e, i, j]
+                for a in range(3):
                     for b in range(3):
-                        r0 = cuj * q[0, a, b] + cvj * q[1, a, b]
-                        r1 = cuj * q[2, a, b] + cvj * q[3, a, b]
-                        value = (cui * r0 + cvi * r1) + face[a, b]
+                        value = (cui * reduced[0, j, a, b] + cvi * reduced[1, j, a, b]) \
+                            + face[a, b]
                         if mode == 1:
                             blocks[e, 27 * i + 9 * a + 3 * j + b] = value
                         else:
-                            data[slots[e, i, j] + 3 * a + b] += value
+                            data[start + 3 * a + b] += value
 
 
 @_jit
@@ -293,14 +300,19 @@ def _hinges(hv, weight, x, v, kb, bb, c_k, c_d, force, kv, theta, grad,
             continue
         # Gauss–Newton block (cK + cD β_b) k_b c_e ∇θ ∇θᵀ, rows (i, a), columns (j, b).
         scale = (c_k + c_d * bb) * kb * weight[h]
-        for r in range(12):
-            scaled = scale * g[r]
-            i, a = r // 3, r % 3
-            for c in range(12):
-                if mode == 1:
+        if mode == 1:
+            for r in range(12):
+                scaled = scale * g[r]
+                for c in range(12):
                     blocks[h, 12 * r + c] = scaled * g[c]
-                else:
-                    data[slots[h, i, c // 3] + 3 * a + c % 3] += scaled * g[c]
+            continue
+        for i in range(4):
+            for j in range(4):
+                start = slots[h, i, j]       # block (i, j): 9 consecutive entries
+                for a in range(3):
+                    scaled = scale * g[3 * i + a]
+                    for b in range(3):
+                        data[start + 3 * a + b] += scaled * g[3 * j + b]
 
 
 @_jit
