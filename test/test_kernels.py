@@ -232,3 +232,24 @@ def test_short_simulation_follows_the_reference():
     x0, v0, _ = _trajectory(False, overrides, 6)
     assert np.abs(x1 - x0).max() < 1e-9
     assert np.abs(v1 - v0).max() < 1e-6
+
+
+@pytest.mark.parametrize("kind,seed", [("uniform", 12), ("graded", 13)])
+def test_measures_match_reference(kind, seed):
+    """Hinge angles and gradients (bitwise), stretch lengths and elastic energies
+    (to round-off): what the LOD criterion, the step test and the stats use."""
+    from cloth_lod_ros.sim import forces
+    mesh = uniform_mesh(3) if kind == "uniform" else graded_mesh(seed)
+    elements = precompute(mesh)
+    x, _ = deformed(mesh, seed, noise=0.1)
+    hv = elements.hinge_vertices
+    theta, grad = kernels.hinge_angles(x, hv, with_gradient=True)
+    ref_theta, ref_grad = forces.hinge_angles(x, hv, with_gradient=True)
+    np.testing.assert_array_equal(theta, ref_theta)
+    np.testing.assert_array_equal(grad, ref_grad)
+    np.testing.assert_array_equal(kernels.hinge_angles(x, hv[:5]), ref_theta[:5])
+    assert kernels.hinge_angles(x, hv[:0]).shape == (0,)
+    assert_close(kernels.stretch_lengths(elements, x), forces.stretch_lengths(elements, x))
+    ours = kernels.elastic_energies(elements, material(), x)
+    ref = forces.elastic_energies(elements, material(), x)
+    assert ours == pytest.approx(ref, rel=RTOL)

@@ -10,7 +10,12 @@ Bridson et al. 2003 for the hinge gradient), written per element.  Units are
 SI: positions m, velocities m/s, forces N, stiffness blocks N/m times the
 weights.
 
-Selection: :func:`evaluate` and :func:`assemble` use the kernels when numba
+Besides the evaluation (:func:`evaluate`, :func:`assemble`), the per-step
+measures have compiled twins: :func:`hinge_angles` (the LOD criterion, merge
+energies), :func:`stretch_lengths` (the step's strain test) and
+:func:`elastic_energies` (the statistics).
+
+Selection: these functions use the kernels when numba
 imports and the environment variable ``CLOTH_LOD_KERNELS`` is not ``numpy``
 (``numba``/``auto``/unset: compiled if available); :func:`use` switches at run
 time (tests, benchmarks).  Without numba everything falls back to the numpy
@@ -28,12 +33,15 @@ import os
 
 import numpy as np
 
+from . import forces as _forces
+
 try:
     import numba
 except ImportError:                 # pragma: no cover - exercised without numba
     numba = None
 
-__all__ = ["available", "enabled", "use", "evaluate", "assemble"]
+__all__ = ["available", "enabled", "use", "evaluate", "assemble", "hinge_angles",
+           "stretch_lengths", "elastic_energies"]
 
 #: Whether numba imported (the compiled path can be used at all).
 available = numba is not None
@@ -228,6 +236,53 @@ def _membrane(tri, cu, cv, area, x, v, ks, ksh, bs, bsh, c_k, c_d, air_coef, win
 
 
 @_jit
+def _hinge_geometry(x, a0, a1, b0, b1, g):
+    """θ (rad) of hinge ``(a0, a1, b0, b1)`` (edge, then the opposite vertices) at
+    positions x ``(n, 3)`` m, and ``∂θ/∂x`` into ``g`` ``(12,)`` 1/m: the
+    operations of forces.hinge_angles, in its order (Bridson et al. 2003)."""
+    ex = x[a1, 0] - x[a0, 0]
+    ey = x[a1, 1] - x[a0, 1]
+    ez = x[a1, 2] - x[a0, 2]
+    px = x[b0, 0] - x[a0, 0]
+    py = x[b0, 1] - x[a0, 1]
+    pz = x[b0, 2] - x[a0, 2]
+    qx = x[b1, 0] - x[a0, 0]
+    qy = x[b1, 1] - x[a0, 1]
+    qz = x[b1, 2] - x[a0, 2]
+    edge_len2 = ex * ex + ey * ey + ez * ez
+    edge_len = np.sqrt(edge_len2)
+    # n0 = edge × to_o0, n1 = to_o1 × edge.
+    n0x = ey * pz - ez * py
+    n0y = ez * px - ex * pz
+    n0z = ex * py - ey * px
+    n1x = qy * ez - qz * ey
+    n1y = qz * ex - qx * ez
+    n1z = qx * ey - qy * ex
+    n0_len2 = n0x * n0x + n0y * n0y + n0z * n0z
+    n1_len2 = n1x * n1x + n1y * n1y + n1z * n1z
+    r0 = np.sqrt(n0_len2)
+    r1 = np.sqrt(n1_len2)
+    h0x, h0y, h0z = n0x / r0, n0y / r0, n0z / r0
+    h1x, h1y, h1z = n1x / r1, n1y / r1, n1z / r1
+    sx = h0y * h1z - h0z * h1y
+    sy = h0z * h1x - h0x * h1z
+    sz = h0x * h1y - h0y * h1x
+    sin_t = (sx * ex + sy * ey + sz * ez) / edge_len
+    cos_t = h0x * h1x + h0y * h1y + h0z * h1z
+    th = np.arctan2(sin_t, cos_t)
+    f0 = -(edge_len / n0_len2)
+    f1 = -(edge_len / n1_len2)
+    g[6], g[7], g[8] = f0 * n0x, f0 * n0y, f0 * n0z
+    g[9], g[10], g[11] = f1 * n1x, f1 * n1y, f1 * n1z
+    t0 = (px * ex + py * ey + pz * ez) / edge_len2
+    t1 = (qx * ex + qy * ey + qz * ez) / edge_len2
+    for d in range(3):
+        g[d] = -((1 - t0) * g[6 + d] + (1 - t1) * g[9 + d])
+        g[3 + d] = -(t0 * g[6 + d] + t1 * g[9 + d])
+    return th
+
+
+@_jit
 def _hinges(hv, weight, x, v, kb, bb, c_k, c_d, force, kv, theta, grad,
             blocks, slots, data, mode):
     """Bend of every hinge, ``C_b = √c_e θ`` (seed paper §5; design §2).
@@ -245,47 +300,8 @@ def _hinges(hv, weight, x, v, kb, bb, c_k, c_d, force, kv, theta, grad,
     h_count = hv.shape[0]
     g = np.empty(12)
     for h in range(h_count):
-        a0, a1, b0, b1 = hv[h, 0], hv[h, 1], hv[h, 2], hv[h, 3]
-        ex = x[a1, 0] - x[a0, 0]
-        ey = x[a1, 1] - x[a0, 1]
-        ez = x[a1, 2] - x[a0, 2]
-        px = x[b0, 0] - x[a0, 0]
-        py = x[b0, 1] - x[a0, 1]
-        pz = x[b0, 2] - x[a0, 2]
-        qx = x[b1, 0] - x[a0, 0]
-        qy = x[b1, 1] - x[a0, 1]
-        qz = x[b1, 2] - x[a0, 2]
-        edge_len2 = ex * ex + ey * ey + ez * ez
-        edge_len = np.sqrt(edge_len2)
-        # n0 = edge × to_o0, n1 = to_o1 × edge.
-        n0x = ey * pz - ez * py
-        n0y = ez * px - ex * pz
-        n0z = ex * py - ey * px
-        n1x = qy * ez - qz * ey
-        n1y = qz * ex - qx * ez
-        n1z = qx * ey - qy * ex
-        n0_len2 = n0x * n0x + n0y * n0y + n0z * n0z
-        n1_len2 = n1x * n1x + n1y * n1y + n1z * n1z
-        r0 = np.sqrt(n0_len2)
-        r1 = np.sqrt(n1_len2)
-        h0x, h0y, h0z = n0x / r0, n0y / r0, n0z / r0
-        h1x, h1y, h1z = n1x / r1, n1y / r1, n1z / r1
-        sx = h0y * h1z - h0z * h1y
-        sy = h0z * h1x - h0x * h1z
-        sz = h0x * h1y - h0y * h1x
-        sin_t = (sx * ex + sy * ey + sz * ez) / edge_len
-        cos_t = h0x * h1x + h0y * h1y + h0z * h1z
-        th = np.arctan2(sin_t, cos_t)
+        th = _hinge_geometry(x, hv[h, 0], hv[h, 1], hv[h, 2], hv[h, 3], g)
         theta[h] = th
-        f0 = -(edge_len / n0_len2)
-        f1 = -(edge_len / n1_len2)
-        g[6], g[7], g[8] = f0 * n0x, f0 * n0y, f0 * n0z
-        g[9], g[10], g[11] = f1 * n1x, f1 * n1y, f1 * n1z
-        t0 = (px * ex + py * ey + pz * ez) / edge_len2
-        t1 = (qx * ex + qy * ey + qz * ez) / edge_len2
-        for d in range(3):
-            g[d] = -((1 - t0) * g[6 + d] + (1 - t1) * g[9 + d])
-            g[3 + d] = -(t0 * g[6 + d] + t1 * g[9 + d])
         theta_dot = 0.0
         for k in range(4):
             node = hv[h, k]
@@ -316,6 +332,38 @@ def _hinges(hv, weight, x, v, kb, bb, c_k, c_d, force, kv, theta, grad,
                     scaled = scale * g[3 * i + a]
                     for b in range(3):
                         data[start + 3 * a + b] += scaled * g[3 * j + b]
+
+
+@_jit
+def _angles(hv, x, theta, grad, with_gradient):
+    """θ ``(h,)`` rad and, if ``with_gradient``, ∂θ/∂x ``(h, 4, 3)`` 1/m of the
+    hinges ``hv`` ``(h, 4)`` at positions x ``(n, 3)`` m (forces.hinge_angles)."""
+    g = np.empty(12)
+    for h in range(hv.shape[0]):
+        theta[h] = _hinge_geometry(x, hv[h, 0], hv[h, 1], hv[h, 2], hv[h, 3], g)
+        if with_gradient:
+            for k in range(4):
+                for d in range(3):
+                    grad[h, k, d] = g[3 * k + d]
+
+
+@_jit
+def _stretches(tri, cu, cv, x, out):
+    """``out`` ``(3, t)``: ``|w_u|``, ``|w_v|`` and ``w_u · w_v`` of every triangle
+    at positions x ``(n, 3)`` m (BW §4.2; forces.elastic_energies' measures)."""
+    for e in range(tri.shape[0]):
+        uu = vv = uv = 0.0
+        for d in range(3):
+            wu = cu[e, 0] * x[tri[e, 0], d] + cu[e, 1] * x[tri[e, 1], d] \
+                + cu[e, 2] * x[tri[e, 2], d]
+            wv = cv[e, 0] * x[tri[e, 0], d] + cv[e, 1] * x[tri[e, 1], d] \
+                + cv[e, 2] * x[tri[e, 2], d]
+            uu += wu * wu
+            vv += wv * wv
+            uv += wu * wv
+        out[0, e] = np.sqrt(uu)
+        out[1, e] = np.sqrt(vv)
+        out[2, e] = uv
 
 
 @_jit
@@ -351,9 +399,8 @@ def evaluate(elements, material, x: np.ndarray, v: np.ndarray,
     (None then): the result's ``assembled`` is that ``(blocks, 3, 3)`` data
     without the diagonal, for :func:`assemble`.
     """
-    from .forces import Evaluation, evaluate as reference
     if not _enabled:
-        return reference(elements, material, x, v, stiffness_weight, damping_weight,
+        return _forces.evaluate(elements, material, x, v, stiffness_weight, damping_weight,
                          with_blocks, air)
     n = elements.vertex_count
     x = np.ascontiguousarray(x, dtype=np.float64)
@@ -393,7 +440,7 @@ def evaluate(elements, material, x: np.ndarray, v: np.ndarray,
     c_u, c_v, c_s, len_u, len_v = conditions
     ks, ksh = material.stretch_stiffness, material.shear_stiffness
     strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
-    result = Evaluation(
+    result = _forces.Evaluation(
         force=force,
         stretch_energy=float(0.5 * ks * (np.sum(c_u**2) + np.sum(c_v**2))),
         shear_energy=float(0.5 * ksh * np.sum(c_s**2)),
@@ -418,3 +465,48 @@ def assemble(pattern, evaluation, diagonal: np.ndarray):
     # A copy: the evaluation may be reused (a contact re-solve of the same
     # state) and finish() adds the diagonal in place.
     return pattern.finish(data.copy(), diagonal)
+
+
+def hinge_angles(x: np.ndarray, hinge_vertices: np.ndarray, with_gradient: bool = False):
+    """:func:`cloth_lod_ros.sim.forces.hinge_angles` (θ ``(h,)`` rad, optionally
+    ∂θ/∂x ``(h, 4, 3)`` 1/m) by the compiled kernel when :func:`enabled`:
+    bitwise the same numbers."""
+    if not _enabled:
+        return _forces.hinge_angles(x, hinge_vertices, with_gradient)
+    hv = _as_index(hinge_vertices).reshape(-1, 4)
+    theta = np.empty(len(hv))
+    grad = np.empty((len(hv), 4, 3) if with_gradient else (0, 4, 3))
+    _angles(hv, np.ascontiguousarray(x, dtype=np.float64), theta, grad, with_gradient)
+    return (theta, grad) if with_gradient else theta
+
+
+def _measures(elements, x: np.ndarray) -> np.ndarray:
+    out = np.empty((3, len(elements.triangles)))
+    _stretches(_as_index(elements.triangles), elements.coef_u, elements.coef_v,
+               np.ascontiguousarray(x, dtype=np.float64), out)
+    return out
+
+
+def stretch_lengths(elements, x: np.ndarray) -> np.ndarray:
+    """:func:`cloth_lod_ros.sim.forces.stretch_lengths` (``(t, 2)``), compiled
+    when :func:`enabled` (equal to round-off)."""
+    if not _enabled:
+        return _forces.stretch_lengths(elements, x)
+    return _measures(elements, x)[:2].T.copy()
+
+
+def elastic_energies(elements, material, x: np.ndarray) -> dict:
+    """:func:`cloth_lod_ros.sim.forces.elastic_energies` (J, and the max
+    strain), compiled when :func:`enabled` (equal to round-off)."""
+    if not _enabled:
+        return _forces.elastic_energies(elements, material, x)
+    len_u, len_v, shear = _measures(elements, x)
+    area = elements.area
+    theta = hinge_angles(x, elements.hinge_vertices)
+    strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
+    return dict(
+        stretch=float(0.5 * material.stretch_stiffness
+                      * np.sum(area * ((len_u - 1.0)**2 + (len_v - 1.0)**2))),
+        shear=float(0.5 * material.shear_stiffness * np.sum(area * shear**2)),
+        bend=float(0.5 * material.bend_stiffness * np.sum(elements.hinge_weight * theta**2)),
+        max_strain=float(strain.max()) if len(strain) else 0.0)
