@@ -32,7 +32,8 @@ import numpy as np
 
 from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
 from .contact import nearest_surface
-from .forces import Elements, air_power, elastic_energies, precompute
+from .forces import Elements, air_power, precompute
+from .kernels import elastic_energies   # compiled when numba is there
 from .grasps import Grasp
 from .held import HeldInputs
 from .hierarchy import Hierarchy48

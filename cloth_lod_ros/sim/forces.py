@@ -256,6 +256,8 @@ class Evaluation:
         hinge_angle: ``(h,)`` θ in rad; ``hinge_gradient``: ``(h, 4, 3)`` ∂θ/∂x
             in 1/m (what the LOD criterion needs; it computes them alone with
             :func:`hinge_angles`, the same numbers).
+        assembled: ``(blocks, 3, 3)`` the blocks already summed into a
+            pattern's BSR data (compiled path, kernels.evaluate) or ``None``.
     """
 
     force: np.ndarray
@@ -268,6 +270,7 @@ class Evaluation:
     hinge_blocks: np.ndarray | None
     hinge_angle: np.ndarray
     hinge_gradient: np.ndarray
+    assembled: np.ndarray | None = None
 
 
 def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,

@@ -35,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .forces import Elements, evaluate
+from . import kernels
+from .forces import Elements
 from .layer_reactions import layer_reactions
 from .linear import Constraints, PatternStorage, SparsePattern, bsr_product
 from .solvers import make_solver
@@ -197,8 +198,11 @@ class ImplicitStageSolver:
                 and np.array_equal(cached[3], x) and np.array_equal(cached[4], v)):
             return cached[5], 0.0
         start = _time.perf_counter()
-        ev = evaluate(elements, self.material, x, v,
-                      stiffness_weight=gh * gh, damping_weight=gh, air=self.air)
+        # Compiled kernels when numba is there (kernels.py; the same numbers to
+        # round-off): they add the blocks straight into the pattern's data.
+        ev = kernels.evaluate(elements, self.material, x, v,
+                              stiffness_weight=gh * gh, damping_weight=gh, air=self.air,
+                              pattern=self._pattern)
         ms = 1e3 * (_time.perf_counter() - start)
         self._evaluated = (elements, gh, self.material, x.copy(), v.copy(), ev, self.air)
         return ev, ms
@@ -217,8 +221,7 @@ class ImplicitStageSolver:
         residual = gh * force - masses[:, None] * (velocities - v_hat)
         t1 = _time.perf_counter()
         # M − γh ∂f/∂v includes the drag term γh·c·M on the diagonal.
-        matrix = self._pattern.assemble([ev.triangle_blocks, ev.hinge_blocks],
-                                        masses * (1.0 + gh * drag))
+        matrix = kernels.assemble(self._pattern, ev, masses * (1.0 + gh * drag))
         t2 = _time.perf_counter()
         return residual, matrix, ms + 1e3 * (t1 - t0), 1e3 * (t2 - t1)
 
@@ -231,7 +234,8 @@ class ImplicitStageSolver:
         ``impulse``: ``(n, 3)`` N·s acting besides the forces (the reactions
         of contacts between layers on the other layer's particles)."""
         x = x_hat + gh * velocities
-        ev = evaluate(elements, self.material, x, velocities, with_blocks=False, air=self.air)
+        ev = kernels.evaluate(elements, self.material, x, velocities, with_blocks=False,
+                              air=self.air)
         drag = self.material.air_drag
         force = ev.force + masses[:, None] * (self.gravity - drag * velocities)
         residual = gh * force - masses[:, None] * (velocities - v_hat)

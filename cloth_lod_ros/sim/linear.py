@@ -21,6 +21,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from . import kernels as _kernels
+
 try:        # the compiled kernel behind scipy's CSR products (see CsrOperator)
     from scipy.sparse._sparsetools import bsr_matvec as _bsr_matvec
     from scipy.sparse._sparsetools import csr_matvec as _csr_matvec
@@ -76,6 +78,8 @@ class SparsePattern:
         size = 9 * sum(v.size * v.shape[1] for v in element_vertices)
         self._all_slots = (storage.take_slots(size) if storage is not None
                            else np.empty(size, dtype=np.int64))
+        self._element_shapes = [v.shape for v in element_vertices]
+        self._block_slots = None
         offset = written = 0
         for v in element_vertices:
             e, k = v.shape
@@ -101,11 +105,47 @@ class SparsePattern:
         """
         if self._all_slots is None:
             raise RuntimeError("this sparsity pattern was retired")
+        if _kernels.enabled():
+            # The compiled scatter: the same sums in the same order, without
+            # the concatenated copy of all blocks (kernels.py).
+            data = np.zeros(9 * self.block_count)
+            offset = 0
+            for blocks in element_blocks:
+                flat = np.ascontiguousarray(blocks, dtype=np.float64).reshape(-1)
+                _kernels._scatter_slots(self._all_slots, offset, flat, data)
+                offset += flat.size
+            return self.finish(data.reshape(-1, 3, 3), diagonal)
         values = np.concatenate([b.ravel() for b in element_blocks])
         data = np.bincount(self._all_slots, weights=values,
                            minlength=9 * self.block_count).reshape(-1, 3, 3)
-        data[self.diagonal_block] += diagonal[:, None, None] * np.eye(3)
+        return self.finish(data, diagonal)
+
+    def finish(self, data: np.ndarray, diagonal: np.ndarray) -> sp.bsr_matrix:
+        """The matrix of summed element entries ``data`` ``(blocks, 3, 3)`` (this
+        pattern's layout; modified in place) plus ``diagonal[i] * I₃`` ``(n,)``."""
+        if _kernels.enabled():
+            _kernels._add_diagonal(self.diagonal_block, np.ascontiguousarray(diagonal,
+                                   dtype=np.float64), data.reshape(-1))
+        else:
+            data[self.diagonal_block] += diagonal[:, None, None] * np.eye(3)
         return sp.bsr_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+    @property
+    def block_slots(self) -> list[np.ndarray]:
+        """Per element kind, ``(e, k, k)`` int64: the flat BSR data index of entry
+        ``(a, b) = (0, 0)`` of each vertex pair's block (entry ``(a, b)`` is 3a + b
+        further).  What compiled kernels add their blocks through: 1/9 of the
+        slots to read (cached; derived from the entry slots)."""
+        if self._all_slots is None:
+            raise RuntimeError("this sparsity pattern was retired")
+        if getattr(self, "_block_slots", None) is None:
+            out, offset = [], 0
+            for e, k in self._element_shapes:
+                entries = self._all_slots[offset:offset + 9 * e * k * k]
+                out.append(np.ascontiguousarray(entries.reshape(e, k, 3, k, 3)[:, :, 0, :, 0]))
+                offset += 9 * e * k * k
+            self._block_slots = out
+        return self._block_slots
 
     def retire(self, storage: "PatternStorage") -> None:
         """Give this pattern's slot array to ``storage`` for a successor; this

@@ -38,7 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .forces import Elements, hinge_angles
+from .forces import Elements
+from .kernels import hinge_angles       # compiled when numba is there
 from .hierarchy import Hierarchy48, Merge
 from .merge_energy import merge_energy_change, merge_kinetic_change
 

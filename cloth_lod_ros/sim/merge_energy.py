@@ -37,7 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .forces import Elements, hinge_angles, hinge_weights, membrane_energies, triangle_maps
+from .forces import Elements, hinge_weights, membrane_energies, triangle_maps
+from .kernels import hinge_angles       # compiled when numba is there
 from .hierarchy import Hierarchy48, merge_velocity_change
 
 __all__ = ["MergeEnergy", "merge_energy_change", "merge_kinetic_change"]

@@ -61,7 +61,8 @@ import numpy as np
 
 from .contact import find_contacts, penetrations
 from .self_contact import merge_contacts
-from .forces import Elements, stretch_lengths
+from .forces import Elements
+from .kernels import stretch_lengths    # compiled when numba is there
 from .integrator import ImplicitStageSolver, SolveReport
 from .state import ClothState
 
