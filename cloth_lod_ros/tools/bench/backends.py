@@ -34,7 +34,7 @@ CASES = (
     ("grasp_lift, LOD on", "grasp_lift", [], 2.0),
     ("grasp_lift, LOD off (L5)", "grasp_lift", ["lod.enabled=false"], 2.0),
 )
-BACKENDS = ("pcg", "multigrid", "direct", "cholmod", "superlu", "auto")
+BACKENDS = ("pcg", "multigrid", "direct", "block_ldl", "cholmod", "superlu", "auto")
 #: SuperLU re-analyses every solve and grows as n^3.6 (6 s per solve at level 8).
 SUPERLU_SKIPPED = ("uniform L7", "uniform L8")
 QUICK_CASES = (("uniform L3", "hang_two_corners", ["lod.enabled=false", "cloth.level=3"], 0.2),
