@@ -1,9 +1,9 @@
 """Baraff–Witkin cloth conditions as resolution-independent energy densities.
 
-Everything here is vectorised over triangles and hinges (no per-element Python
-loop).  Units are SI: positions in m, velocities in m/s, forces in N, energies
-in J.  References: Baraff & Witkin, "Large steps in cloth simulation" (1998),
-§4.2–4.5 (conditions, forces, damping), §5 (implicit step); the seed paper §5
+Vectorised over triangles and hinges (:mod:`.kernels` compiles the same maths).
+SI units: positions in m, velocities in m/s, forces in N, energies in J.
+References: Baraff & Witkin, "Large steps in cloth simulation" (1998), §4.2–4.5
+(conditions, forces, damping), §5 (implicit step); the seed paper §5
 (bend condition C = θ); design §2 (energies as discretised densities).
 
 Conditions (``A`` = rest area of the triangle in m², ``w_u``/``w_v`` = the
@@ -171,6 +171,21 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...i->...", a, b)
 
 
+def summarise(material, conditions, weight, theta, hinge_gradient, force, kv,
+              triangle_blocks, hinge_blocks) -> "Evaluation":
+    """The :class:`Evaluation`; energies (J) and largest strain from the conditions
+    ``(c_u, c_v, c_s, len_u, len_v)`` ``(t,)`` and the hinge angles ``(h,)`` rad."""
+    c_u, c_v, c_s, len_u, len_v = conditions
+    strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
+    return Evaluation(
+        force=force, shear_energy=float(0.5 * material.shear_stiffness * np.sum(c_s**2)),
+        stretch_energy=float(0.5 * material.stretch_stiffness * (np.sum(c_u**2) + np.sum(c_v**2))),
+        bend_energy=float(0.5 * material.bend_stiffness * np.sum(weight * theta**2)),
+        max_strain=float(strain.max()) if len(strain) else 0.0,
+        stiffness_times_velocity=kv, triangle_blocks=triangle_blocks,
+        hinge_blocks=hinge_blocks, hinge_angle=theta, hinge_gradient=hinge_gradient)
+
+
 def hinge_angles(x: np.ndarray, hinge_vertices: np.ndarray,
                  with_gradient: bool = False):
     """Signed dihedral angles θ (rad) of the hinges, and optionally ∂θ/∂x.
@@ -295,10 +310,8 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
     """
     n = elements.vertex_count
     tri = elements.triangles
-    ks, ksh, kb = (material.stretch_stiffness, material.shear_stiffness,
-                   material.bend_stiffness)
-    bs, bsh, bb = (material.stretch_damping, material.shear_damping,
-                   material.bend_damping)
+    ks, ksh, kb = material.stretch_stiffness, material.shear_stiffness, material.bend_stiffness
+    bs, bsh, bb = material.stretch_damping, material.shear_damping, material.bend_damping
     cu, cv, area = elements.coef_u, elements.coef_v, elements.area
     sqrt_area = np.sqrt(area)
 
@@ -374,16 +387,8 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
     elif air is not None:
         force += _air_face_terms(elements, air, corners_x, corners_v, damping_weight, False)[0]
 
-    strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
-    return Evaluation(
-        force=force,
-        stretch_energy=float(0.5 * ks * (np.sum(c_u**2) + np.sum(c_v**2))),
-        shear_energy=float(0.5 * ksh * np.sum(c_s**2)),
-        bend_energy=float(0.5 * kb * np.sum(weight * theta**2)),
-        max_strain=float(strain.max()) if len(strain) else 0.0,
-        stiffness_times_velocity=kv,
-        triangle_blocks=tri_blocks, hinge_blocks=hinge_blocks,
-        hinge_angle=theta, hinge_gradient=grad_b)
+    return summarise(material, (c_u, c_v, c_s, len_u, len_v), weight, theta, grad_b, force,
+                     kv, tri_blocks, hinge_blocks)
 
 
 def _membrane_blocks(elements: Elements, along: np.ndarray, across_scale: np.ndarray,

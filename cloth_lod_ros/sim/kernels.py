@@ -437,19 +437,10 @@ def evaluate(elements, material, x: np.ndarray, v: np.ndarray,
     if air is not None:
         force += air_force
 
-    c_u, c_v, c_s, len_u, len_v = conditions
-    ks, ksh = material.stretch_stiffness, material.shear_stiffness
-    strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
-    result = _forces.Evaluation(
-        force=force,
-        stretch_energy=float(0.5 * ks * (np.sum(c_u**2) + np.sum(c_v**2))),
-        shear_energy=float(0.5 * ksh * np.sum(c_s**2)),
-        bend_energy=float(0.5 * kb * np.sum(weight * theta**2)),
-        max_strain=float(strain.max()) if len(strain) else 0.0,
-        stiffness_times_velocity=kv,
-        triangle_blocks=tri_blocks.reshape(t_count, 3, 3, 3, 3) if mode == 1 else None,
-        hinge_blocks=hinge_blocks.reshape(h_count, 4, 3, 4, 3) if mode == 1 else None,
-        hinge_angle=theta, hinge_gradient=grad)
+    result = _forces.summarise(
+        material, conditions, weight, theta, grad, force, kv,
+        tri_blocks.reshape(t_count, 3, 3, 3, 3) if mode == 1 else None,
+        hinge_blocks.reshape(h_count, 4, 3, 4, 3) if mode == 1 else None)
     result.assembled = data.reshape(-1, 3, 3) if fused else None
     return result
 
