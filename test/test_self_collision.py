@@ -9,6 +9,7 @@ from cloth_lod_ros.sim import ClothSim
 from cloth_lod_ros.sim import self_contact as self_contact_module
 from cloth_lod_ros.sim.config import SceneError, load_scene, scene_from_dict, scene_to_dict
 from cloth_lod_ros.sim.self_contact import SelfCollision
+from cloth_lod_ros.sim import kernels
 from cloth_lod_ros.sim.self_geometry import (box_pairs, ee_crossing, layered_boxes,
                                              point_triangle, segment_segment, vf_crossing)
 from cloth_lod_ros.tools.stress.intersect import intersecting_pairs
@@ -83,11 +84,22 @@ def _layered_by_cells(lo, hi, uv_lo, uv_hi, pad, normals):
     return out
 
 
-def test_layered_boxes_match_a_cell_by_cell_search():
+@pytest.mark.parametrize("compiled", [False, True], ids=["numpy", "compiled"])
+def test_layered_boxes_match_a_cell_by_cell_search(compiled):
     """Flat, folded and torn grids of triangles (a particle pulled 0.5 m away:
     boxes spanning many cells; half the boxes 30 m away: a sparse grid): the
-    vectorised test flags exactly the boxes of the cells that the plain search
-    flags."""
+    vectorised test (numpy, or compiled where numba is installed) flags exactly
+    the boxes of the cells that the plain search flags."""
+    if compiled and not kernels.available:
+        pytest.skip("numba not installed")
+    previous = kernels.use(compiled)
+    try:
+        _check_layered_boxes()
+    finally:
+        kernels.use(previous)
+
+
+def _check_layered_boxes():
     n = 12
     g = np.linspace(0.0, 0.6, n + 1)
     u, v = (a.ravel() for a in np.meshgrid(g, g))

@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels as _kernels
+
 __all__ = ["box_pairs", "layered_boxes", "point_triangle", "segment_segment", "vf_crossing",
            "ee_crossing", "edges_of"]
 
@@ -150,9 +152,16 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
     cell = 1.5 * max(_median(_extent(lo, hi)), 1e-9)
     origin = _corner(lo, False)
     dims = np.floor((_corner(hi, True) - origin) / cell).astype(np.int64) + 1
+    far = 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad)
+    if _kernels.enabled() and int(dims.prod()) <= 8 * len(lo) + 4096:
+        # Compiled, on the dense grid (a cloth's bounding box): ~10x faster.
+        out = np.zeros(len(lo), dtype=bool)
+        _kernels.layered_cells(np.ascontiguousarray(lo), np.ascontiguousarray(hi),
+                               np.ascontiguousarray(uv_lo), np.ascontiguousarray(uv_hi),
+                               np.ascontiguousarray(normals), cell, origin, dims, far, out)
+        return out
     box, key = _cells(lo, hi, cell, origin, dims)
     key, cells = _dense(key, dims)
-    far = 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad)
     layered = np.zeros(cells, dtype=bool)
     # (Columns one at a time: numpy's fancy indexing of (k, 3) arrays costs
     # several times a take of their columns.)
