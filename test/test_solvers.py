@@ -186,8 +186,8 @@ def _factorisation() -> str:
 
 def test_auto_factorises_small_systems_and_uses_multigrid_on_large_ones():
     small = ClothSim.from_scene("hang_two_corners")                       # adaptive, ~200 particles
-    # Uniform L7 (2,113 particles) is above every factorisation's uniform limit.
-    large = ClothSim.from_scene("hang_two_corners", ["lod.enabled=false", "cloth.level=7"])
+    # Uniform L8 (4,225 particles) is above every factorisation's uniform limit.
+    large = ClothSim.from_scene("hang_two_corners", ["lod.enabled=false", "cloth.level=8"])
     assert small.step().solver == _factorisation()
     assert large.step().solver == "multigrid"
 
@@ -242,10 +242,10 @@ def test_auto_factorises_larger_graded_meshes_than_uniform_ones():
     uniform_limit, graded_limit = auto.limits
     if _factorisation() == "pcg":
         pytest.skip("no factorisation installed")
-    # Uniform levels: 4 -> 289, 5 -> 545, 6 -> 1,089, 7 -> 2,113 particles.
+    # Uniform levels: 4 -> 289, 5 -> 545, 6 -> 1,089, 7 -> 2,113, 8 -> 4,225 particles.
     counts = {level: (2 ** (level // 2 + 2) + 1) ** 2 if level % 2 == 0
               else (2 ** (level // 2 + 2) + 1) ** 2 + (2 ** (level // 2 + 2)) ** 2
-              for level in range(4, 8)}
+              for level in range(4, 9)}
     small = max(level for level, c in counts.items() if c <= uniform_limit)
     middle = min(level for level, c in counts.items() if c > uniform_limit)
     assert counts[middle] <= graded_limit

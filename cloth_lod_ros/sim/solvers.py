@@ -54,11 +54,12 @@ AUTO_DIRECT_LIMIT = 700
 #: V-cycle is weaker (default scene, adaptive to L6: LDLT 0.60x pcg, multigrid
 #: 0.83x; with the 700 limit auto switched between them and made 0.85x).
 AUTO_DIRECT_LIMIT_GRADED = 1200
-#: The same limits for the block LDLᵀ and CHOLMOD, about 2.5x faster than QDLDL
-#: (one solve of uniform L6, 1,089 particles: block LDLT 11-12 ms, CHOLMOD 10,
-#: multigrid 16, QDLDL 26; L7, 2,113: 26, -, 21, 76).
-AUTO_FAST_DIRECT_LIMIT = 1600
-AUTO_FAST_DIRECT_LIMIT_GRADED = 2500
+#: The same limits for the block LDLᵀ and CHOLMOD, ~2.5x faster than QDLDL.
+#: ``bench --solvers`` (ms per step, sdirk2): uniform L6 (1,089 particles)
+#: block LDLT 25.2, multigrid 52.8; L7 (2,113) 74.6 against 127.1; L8 (4,225)
+#: 205 against 210, a tie - so up to L7 on uniform meshes, further on graded ones.
+AUTO_FAST_DIRECT_LIMIT = 2500
+AUTO_FAST_DIRECT_LIMIT_GRADED = 5000
 
 try:                                   # an optional dependency: see available_methods()
     import qdldl as _qdldl
