@@ -138,7 +138,7 @@ class SparsePattern:
         slots to read (cached; derived from the entry slots)."""
         if self._all_slots is None:
             raise RuntimeError("this sparsity pattern was retired")
-        if getattr(self, "_block_slots", None) is None:
+        if self._block_slots is None:
             out, offset = [], 0
             for e, k in self._element_shapes:
                 entries = self._all_slots[offset:offset + 9 * e * k * k]

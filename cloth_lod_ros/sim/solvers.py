@@ -212,11 +212,7 @@ class LdlDirect(LinearSolver):
         order, indices, indptr = self._upper
         self._numeric(data.ravel()[order], indices, indptr, matrix.shape)
         y = self._backsolve(b.ravel()).reshape(-1, 3)
-        dv = z + constraints.filter(y)
-        rel = relative_residual(matrix, rhs, constraints, dv)
-        return SolveResult(dv=dv, iterations=0, residual=rel,
-                           converged=bool(np.isfinite(rel) and rel <= max(self.tolerance,
-                                                                          1e-8)))
+        return _factorised_result(matrix, rhs, constraints, z, y, self.tolerance)
 
     def _numeric(self, upper_data, indices, indptr, shape) -> None:
         """Factorise the projected system given by its upper triangle in CSC
@@ -275,11 +271,17 @@ class BlockLdl(LinearSolver):
                                         f"block at particle {int(perm[failed])}")
         y = kernels.solve(perm, pointers, self._rows, self._factor, self._inverse_diagonal,
                           np.ascontiguousarray(b))
-        dv = z + constraints.filter(y)
-        rel = relative_residual(matrix, rhs, constraints, dv)
-        return SolveResult(dv=dv, iterations=0, residual=rel,
-                           converged=bool(np.isfinite(rel) and rel <= max(self.tolerance,
-                                                                          1e-8)))
+        return _factorised_result(matrix, rhs, constraints, z, y, self.tolerance)
+
+
+def _factorised_result(matrix, rhs, constraints, z, y, tolerance) -> SolveResult:
+    """``Δv = z + S y`` from a factorisation's solution ``y`` ``(n, 3)`` of the
+    projected system, with its residual (converged: within ``tolerance``, or
+    1e-8 for a tolerance below what round-off allows)."""
+    dv = z + constraints.filter(y)
+    rel = relative_residual(matrix, rhs, constraints, dv)
+    return SolveResult(dv=dv, iterations=0, residual=rel,
+                       converged=bool(np.isfinite(rel) and rel <= max(tolerance, 1e-8)))
 
 
 def particle_ordering(indptr: np.ndarray, indices: np.ndarray, n: int) -> np.ndarray:
