@@ -423,10 +423,11 @@ class ClothSim(HeldInputs, ObstacleInputs):
             h, time = self.hierarchy, self.state.time
             held_nodes = self._held_nodes()
             detail_points = np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
-            in_contact = np.zeros(len(self.vertex_ids), dtype=bool)
+            # How many obstacles each particle touches (0, 1 or 2).
+            in_contact = np.zeros(len(self.vertex_ids), dtype=np.int8)
             if (self.contacts is not None and len(self.contacts)
                     and self._contacts_version == h.version):     # same compact numbering
-                in_contact[self.contacts.indices] = True
+                in_contact[self.contacts.indices] = 1 + self.contacts.doubled
             layered = (sc.near(self.state.positions, own.detail_distance)
                        if sc is not None else None)
             decision = self.lod_policy.decide(
@@ -468,9 +469,13 @@ class ClothSim(HeldInputs, ObstacleInputs):
         if not len(new):
             return
         thickness = self.scene.contact.thickness
-        best, normal, _ = nearest_surface(self.obstacles, h.x[new])
-        inside = best < thickness
-        h.x[new[inside]] += (thickness - best[inside])[:, None] * normal[inside]
+        # Each obstacle in turn, twice: a particle in the corner between two
+        # (a box standing on the table) lifted out of one must not stay in
+        # the other.
+        for obstacle in 2 * list(self.obstacles) if len(self.obstacles) > 1 else self.obstacles:
+            best, normal = obstacle.distance(h.x[new])
+            inside = best < thickness
+            h.x[new[inside]] += (thickness - best[inside])[:, None] * normal[inside]
 
     def run(self, duration: float | None = None, callback=None) -> list[StepStats]:
         """Step until ``duration`` more seconds (default: the scene's) have passed."""

@@ -285,6 +285,15 @@ class ContactSet:
         reaction to the impulse this contact applies acts on them.  Zero
         weights (or None for the whole set): an obstacle, which takes the
         reaction itself (kinematic).
+        ``second``: a particle near two obstacles at once (wedged between a
+        pushing box and the table) is constrained against both: ``second`` is
+        a set aligned row by row with this one (same ``indices``) holding the
+        other obstacle's normal, distance, friction, hold and surface
+        velocity; rows with one obstacle have a zero normal there
+        (:attr:`doubled` is False).  None: no row has a second obstacle.
+        The solve then keeps the particle out of both (its normal velocity
+        prescribed along both normals, free only along their common tangent;
+        ``contact_rows``).
     """
 
     indices: np.ndarray
@@ -295,6 +304,7 @@ class ContactSet:
     velocity: np.ndarray | None = None
     partners: np.ndarray | None = None
     partner_weights: np.ndarray | None = None
+    second: "ContactSet | None" = None
 
     def __post_init__(self):
         if self.hold is None:
@@ -303,18 +313,66 @@ class ContactSet:
     def __len__(self) -> int:
         return len(self.indices)
 
+    @property
+    def doubled(self) -> np.ndarray:
+        """``(k,)`` bool: rows constrained against a second obstacle too."""
+        if self.second is None:
+            return np.zeros(len(self), bool)
+        return np.any(self.second.normals != 0.0, axis=1)
+
+    def second_or_blank(self) -> "ContactSet":
+        """:attr:`second`, or a blank one (zero normals) when there is none."""
+        if self.second is not None:
+            return self.second
+        k = len(self)
+        return ContactSet(self.indices, np.zeros((k, 3)), np.zeros(k), np.zeros(k),
+                          velocity=None if self.velocity is None else np.zeros((k, 3)))
+
+    def swapped(self, rows: np.ndarray) -> "ContactSet":
+        """A copy whose ``rows`` (``(k,)`` bool) take their second obstacle as
+        the first and lose the second (the first one's contact was released)."""
+        first, second = self.subset(slice(None)), self.second.subset(slice(None))
+        for name in ("normals", "distance", "friction", "hold"):
+            getattr(first, name)[rows] = getattr(second, name)[rows]
+        if first.velocity is not None or second.velocity is not None:
+            first.velocity = first.surface_velocity().copy()
+            first.velocity[rows] = second.surface_velocity()[rows]
+        first.second = second.without(rows)
+        return first
+
+    def without_second(self, rows: np.ndarray) -> "ContactSet":
+        """A copy whose ``rows`` (``(k,)`` bool) lose their second obstacle."""
+        out = self.subset(slice(None))
+        out.second = self.second.without(rows)
+        return out
+
+    def without(self, rows: np.ndarray) -> "ContactSet":
+        """A copy with ``rows`` (``(k,)`` bool) blanked (zero normal: no constraint);
+        for :attr:`second` sets."""
+        out = self.subset(slice(None))
+        out.normals[rows] = 0.0
+        out.distance[rows] = 0.0
+        out.friction[rows] = 0.0
+        out.hold[rows] = False
+        if out.velocity is not None:
+            out.velocity[rows] = 0.0
+        return out
+
     def normal_speed(self) -> np.ndarray | None:
         """``(k,)`` m/s: the surface's velocity along each normal (None: static)."""
         if self.velocity is None:
             return None
         return np.einsum("kd,kd->k", self.velocity, self.normals)
 
-    def subset(self, keep: np.ndarray) -> "ContactSet":
-        return ContactSet(self.indices[keep], self.normals[keep], self.distance[keep],
-                          self.friction[keep], self.hold[keep],
-                          None if self.velocity is None else self.velocity[keep],
+    def subset(self, keep) -> "ContactSet":
+        """The rows ``keep`` (bool mask, indices or a slice: copies)."""
+        return ContactSet(self.indices[keep].copy(), self.normals[keep].copy(),
+                          self.distance[keep].copy(), self.friction[keep].copy(),
+                          self.hold[keep].copy(),
+                          None if self.velocity is None else self.velocity[keep].copy(),
                           None if self.partners is None else self.partners[keep],
-                          None if self.partners is None else self.partner_weights[keep])
+                          None if self.partners is None else self.partner_weights[keep],
+                          None if self.second is None else self.second.subset(keep))
 
     def partner_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """``(partners (k, 3), weights (k, 3))``: :attr:`partners` and
@@ -338,12 +396,15 @@ class ContactSet:
         if self.partners is not None or other.partners is not None:
             partners = tuple(np.concatenate([mine[keep], theirs]) for mine, theirs
                              in zip(self.partner_arrays(), other.partner_arrays()))
+        second = None
+        if self.second is not None or other.second is not None:
+            second = self.second_or_blank().subset(keep).union(other.second_or_blank())
         return ContactSet(np.concatenate([self.indices[keep], other.indices]),
                           np.concatenate([self.normals[keep], other.normals]),
                           np.concatenate([self.distance[keep], other.distance]),
                           np.concatenate([self.friction[keep], other.friction]),
                           np.concatenate([self.hold[keep], other.hold]), velocity,
-                          *partners)
+                          *partners, second)
 
 
 def _nearest(obstacles: list[Obstacle], x: np.ndarray):
@@ -384,6 +445,65 @@ def _surface_velocity(obstacles: list[Obstacle], which: np.ndarray, x: np.ndarra
     return velocity
 
 
+#: A second obstacle constrains a particle when its normal is at least this
+#: far (|cos| below it, 15°) from the first's: nearly parallel surfaces are
+#: covered by the first constraint, nearly opposite ones (a particle squeezed
+#: in a gap thinner than the cloth) cannot both be met.
+SECOND_NORMAL_COS = float(np.cos(np.radians(15.0)))
+
+
+def _second(obstacles: list[Obstacle], which: np.ndarray, x: np.ndarray,
+            normal: np.ndarray, band: float, velocities: np.ndarray | None = None,
+            h: float = 0.0):
+    """For ``k`` particles at ``x`` ``(k, 3)`` (m) constrained against obstacle
+    ``which`` ``(k,)`` along ``normal`` ``(k, 3)``: the nearest *other*
+    obstacle within ``band`` m (after the approach ``h·min((v − u)·n, 0)`` over
+    ``h`` s at ``velocities`` ``(k, 3)`` m/s) whose normal is not nearly
+    parallel or opposite to ``normal``.  Returns ``(rows (k,) bool, φ (k,),
+    normal (k, 3), μ (k,), index (k,))`` (rows False: none)."""
+    k = len(x)
+    best = np.full(k, np.inf)
+    out_normal = np.zeros((k, 3))
+    mu = np.zeros(k)
+    out_which = np.full(k, -1)
+    for j, obstacle in enumerate(obstacles):
+        others = np.flatnonzero(which != j)
+        if not len(others):
+            continue
+        phi, nrm = obstacle.distance(x[others])
+        gap = phi
+        if velocities is not None and h > 0:
+            relative = velocities[others] - obstacle.surface_velocity(x[others] - phi[:, None] * nrm)
+            gap = phi + h * np.minimum(np.einsum("kd,kd->k", relative, nrm), 0.0)
+        cos = np.einsum("kd,kd->k", nrm, normal[others])
+        take = (gap < band) & (np.abs(cos) < SECOND_NORMAL_COS) & (phi < best[others])
+        rows = others[take]
+        best[rows] = phi[take]
+        out_normal[rows] = nrm[take]
+        mu[rows] = obstacle.friction
+        out_which[rows] = j
+    return out_which >= 0, best, out_normal, mu, out_which
+
+
+def _with_second(contacts: ContactSet, obstacles, x_rows, found, phi, normal, mu, which,
+                 distance, hold) -> ContactSet:
+    """``contacts`` with the second obstacles :func:`_second` ``found``
+    (``(k,)`` bool) attached as :attr:`ContactSet.second`, at ``distance``
+    ``(k,)`` m and ``hold`` ``(k,)``; unchanged when none was found."""
+    if not found.any():
+        return contacts
+    k = len(contacts)
+    velocity = None
+    if any(o.moving for o in obstacles):
+        velocity = np.zeros((k, 3))
+        velocity[found] = _surface_velocity(obstacles, which[found], x_rows[found],
+                                            phi[found], normal[found])
+    contacts.second = ContactSet(contacts.indices, np.where(found[:, None], normal, 0.0),
+                                 np.where(found, distance, 0.0), np.where(found, mu, 0.0),
+                                 found & hold, velocity)
+    return contacts
+
+
 def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
                   exclude: np.ndarray | None = None, velocities: np.ndarray | None = None,
                   h: float = 0.0) -> ContactSet:
@@ -416,8 +536,15 @@ def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
     if exclude is not None and len(exclude):
         touching[exclude] = False
     idx = np.flatnonzero(touching)
-    return ContactSet(idx, normal[idx], best[idx] - thickness, mu[idx],
-                      velocity=None if surface_velocity is None else surface_velocity[idx])
+    contacts = ContactSet(idx, normal[idx], best[idx] - thickness, mu[idx],
+                          velocity=None if surface_velocity is None else surface_velocity[idx])
+    if len(obstacles) > 1 and len(idx):
+        found, phi, nrm, mu2, which2 = _second(
+            obstacles, which[idx], x[idx], normal[idx], 2.0 * thickness,
+            None if velocities is None else velocities[idx], h)
+        contacts = _with_second(contacts, obstacles, x[idx], found, phi, nrm, mu2, which2,
+                                phi - thickness, np.zeros(len(idx), bool))
+    return contacts
 
 
 def penetrations(obstacles: list[Obstacle], start: np.ndarray, end: np.ndarray,
@@ -448,5 +575,21 @@ def penetrations(obstacles: list[Obstacle], start: np.ndarray, end: np.ndarray,
     if velocity is not None:
         surface = surface - h * velocity
     along = np.einsum("kd,kd->k", start[idx] - surface, normal[idx])
-    return ContactSet(idx, normal[idx], along - thickness, mu[idx],
-                      np.ones(len(idx), dtype=bool), velocity)
+    contacts = ContactSet(idx, normal[idx], along - thickness, mu[idx],
+                          np.ones(len(idx), dtype=bool), velocity)
+    if len(obstacles) > 1 and len(idx):
+        # Pushed into one obstacle, it may be next to another (a box pushing
+        # it into the table's corner): that one constrains it too.
+        found, phi, nrm, mu2, which2 = _second(obstacles, which[idx], end[idx], normal[idx],
+                                               2.0 * thickness)
+        surface2 = end[idx] - np.where(found, phi, 0.0)[:, None] * nrm
+        contacts = _with_second(contacts, obstacles, end[idx], found, phi, nrm, mu2, which2,
+                                np.zeros(len(idx)), np.zeros(len(idx), bool))
+        if contacts.second is not None:
+            if contacts.second.velocity is not None:
+                surface2 = surface2 - h * contacts.second.velocity
+            along2 = np.einsum("kd,kd->k", start[idx] - surface2, nrm)
+            second = contacts.second
+            second.distance = np.where(found, along2 - thickness, 0.0)
+            second.hold = found & (phi < (1.0 - tolerance) * thickness)
+    return contacts

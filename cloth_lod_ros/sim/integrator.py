@@ -37,6 +37,7 @@ import numpy as np
 
 from . import kernels
 from .forces import Elements
+from .contact_rows import TwoNormals
 from .layer_reactions import layer_reactions
 from .linear import Constraints, PatternStorage, SparsePattern, bsr_product
 from .solvers import make_solver
@@ -288,7 +289,13 @@ class ImplicitStageSolver:
             normals = contacts.normals
             rows = contacts.indices
             along = np.einsum("kd,kd->k", velocities[rows], normals)
-            velocities[rows] += (-contact_distance / gh - along)[:, None] * normals
+            velocities[rows] += (-_first(contact_distance) / gh - along)[:, None] * normals
+            doubled = contacts.doubled
+            if doubled.any():
+                two = TwoNormals(normals[doubled], contacts.second.normals[doubled])
+                rows = rows[doubled]
+                velocities[rows] += two.landing(velocities[rows],
+                                                -contact_distance[doubled] / gh)
         pinned = Constraints(indices=held_idx, projectors=np.zeros((len(held_idx), 3, 3)),
                              prescribed=np.zeros((len(held_idx), 3)))
         frozen = held_idx if contacts is None else np.concatenate([held_idx, contacts.indices])
@@ -404,9 +411,16 @@ class ImplicitStageSolver:
         rounds = self.friction_rounds     # a slip front moves one row of contacts per round
         for attempt in range(rounds):
             normals = contacts.normals
-            target_vn = -distance / h
+            target_vn = -_first(distance) / h
             current = v[contacts.indices]
-            sliding = (contacts.friction <= 0.0) | slip
+            # Rows against two obstacles (contact_rows): both normals held.
+            doubled = contacts.doubled
+            two = TwoNormals(normals[doubled], contacts.second.normals[doubled]) \
+                if doubled.any() else None
+            friction = contacts.friction
+            if two is not None:
+                friction = friction + contacts.second.friction
+            sliding = (friction <= 0.0) | slip
             projectors = np.zeros((len(contacts), 3, 3))
             projectors[sliding] = np.eye(3) - normals[sliding, :, None] * normals[sliding, None, :]
             # Held contacts: full Δv to (target_vn n) plus the surface's
@@ -419,6 +433,17 @@ class ImplicitStageSolver:
                 prescribed += contacts.velocity - surface_vn[:, None] * normals
             current_vn = np.einsum("kd,kd->k", current, normals)
             prescribed[sliding] = ((target_vn - current_vn)[sliding, None] * normals[sliding])
+            if two is not None:
+                # Landing on both surfaces; a sticking row also moves with
+                # the first surface along their common tangent.
+                targets = -distance[doubled] / h
+                land = two.landing(current[doubled], targets)
+                free = two.free_projectors()
+                stick = land + np.einsum("kab,kb->ka", free, contacts.surface_velocity()[doubled]
+                                         - current[doubled])
+                slides = sliding[doubled]
+                prescribed[doubled] = np.where(slides[:, None], land, stick)
+                projectors[doubled] = np.where(slides[:, None, None], free, 0.0)
             step_rhs = rhs
             if slip.any():
                 step_rhs = rhs.copy()
@@ -433,18 +458,26 @@ class ImplicitStageSolver:
             reaction = (bsr_product(matrix, result.dv) - step_rhs)[contacts.indices]
             normal_reaction = np.einsum("kd,kd->k", reaction, normals)
             pulling = (normal_reaction < 0.0) & ~contacts.hold
-            if pulling.any() and attempt == 0:
-                released += int(pulling.sum())
-                contacts = contacts.subset(~pulling)
-                distance = distance[~pulling]
-                slip = slip[~pulling]
-                friction_impulse = friction_impulse[~pulling]
+            pulling_second = np.zeros(len(contacts), bool)
+            if two is not None:
+                loads = two.normal_loads(reaction[doubled])          # (k₂, 2) N·s
+                normal_reaction[doubled] = loads[:, 0]
+                pulling[doubled] = (loads[:, 0] < 0.0) & ~contacts.hold[doubled]
+                pulling_second[doubled] = (loads[:, 1] < 0.0) & ~contacts.second.hold[doubled]
+            if (pulling.any() or pulling_second.any()) and attempt == 0:
+                released += int(pulling.sum() + pulling_second.sum())
+                contacts, distance, keep = _release(contacts, distance, pulling,
+                                                    pulling_second)
+                slip = slip[keep]
+                friction_impulse = friction_impulse[keep]
                 if not len(contacts):
                     result = self._solve(matrix, rhs, pinned)
                     iterations += result.iterations
                     break
                 continue
             tangential = reaction - normal_reaction[:, None] * normals
+            if two is not None:
+                tangential[doubled] = reaction[doubled] - two.in_plane(reaction[doubled])
             magnitude = np.linalg.norm(tangential, axis=1)
             # Normal load for friction: the reaction less what pushing a particle
             # out of the offset surface costs (a position correction is not a load).
@@ -454,7 +487,14 @@ class ImplicitStageSolver:
             push_out = target_vn if surface_vn is None else target_vn - surface_vn
             correction = masses[contacts.indices] * np.maximum(push_out, 0.0)
             limit = contacts.friction * np.maximum(normal_reaction - correction, 0.0)
-            new_slip = (contacts.friction > 0.0) & (magnitude > limit) & ~slip
+            if two is not None:
+                second = contacts.second.subset(doubled)
+                push_out = targets[:, 1]
+                if second.velocity is not None:
+                    push_out = push_out - second.normal_speed()
+                correction = masses[second.indices] * np.maximum(push_out, 0.0)
+                limit[doubled] += second.friction * np.maximum(loads[:, 1] - correction, 0.0)
+            new_slip = (friction > 0.0) & (magnitude > limit) & ~slip
             if not new_slip.any():
                 break
             slip |= new_slip
@@ -488,3 +528,29 @@ def _merge_constraints(pinned: Constraints, indices, projectors, prescribed) -> 
     return Constraints(indices=np.concatenate([pinned.indices, indices]),
                        projectors=np.concatenate([pinned.projectors, projectors]),
                        prescribed=np.concatenate([pinned.prescribed, prescribed]))
+
+
+def _first(distance: np.ndarray) -> np.ndarray:
+    """``(k,)`` the first obstacle's column of a ``(k,)`` or ``(k, 2)`` distance."""
+    return distance if distance.ndim == 1 else distance[:, 0]
+
+
+def _release(contacts, distance, first: np.ndarray, second: np.ndarray):
+    """Release the obstacles that pull: ``first``/``second`` ``(k,)`` bool
+    mark rows whose first/second obstacle's normal load is negative.  A row
+    keeps the obstacle that still pushes (its second becomes its first when
+    only the first lets go) and goes when neither does.  Returns
+    ``(contacts, distance, keep)``, ``keep`` ``(k,)`` bool the rows left."""
+    doubled = contacts.doubled
+    swap = first & doubled & ~second
+    drop_second = second & ~first
+    keep = ~(first & (~doubled | second))
+    if swap.any() or drop_second.any():
+        distance = distance.copy()
+        if swap.any():
+            contacts = contacts.swapped(swap)
+            distance[swap, 0] = distance[swap, 1]
+        if drop_second.any():
+            contacts = contacts.without_second(drop_second)
+        distance[swap | drop_second, 1] = 0.0
+    return contacts.subset(keep), distance[keep], keep

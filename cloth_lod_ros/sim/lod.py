@@ -153,8 +153,10 @@ class LodPolicy:
             held: pool ids of particles held by pins or grasps (never merged).
             detail_points: ``(k, 2)`` (u, v) points (closed grasps) around which
                 the mesh is kept at ``detail_level`` within ``detail_radius``.
-            in_contact: ``(n,)`` compact particles touching an obstacle; triangles
-                on the border of the contact region get ``detail_level``.
+            in_contact: ``(n,)`` how many obstacles each compact particle
+                touches (0, 1 or 2, or bool); triangles on the border of the
+                contact region, or touching a particle between two obstacles,
+                get ``detail_level``, and the latter are not merged.
             supported: callable(pool vertex ids) -> bool mask of split particles
                 an obstacle is holding up (merging them would sink the coarse
                 edge into it); those are not merged.
@@ -221,10 +223,13 @@ class LodPolicy:
                 ok &= ~(near & (child_level - 1 < cfg.detail_level))
             if supported is not None and ok.any():
                 ok[ok] &= ~supported(vertices[ok])
-            if layered is not None and layered.any():
-                ends = np.searchsorted(vertex_ids, hierarchy.vertex_edge[vertices])
-                ok &= ~(layered[np.searchsorted(vertex_ids, vertices)]
-                        | layered[ends].any(axis=1))
+            for keep_out in (layered, None if in_contact is None else in_contact > 1):
+                # Nothing merges next to another layer or a particle between
+                # two obstacles (what the detail above refined stays).
+                if keep_out is not None and keep_out.any():
+                    ends = np.searchsorted(vertex_ids, hierarchy.vertex_edge[vertices])
+                    ok &= ~(keep_out[np.searchsorted(vertex_ids, vertices)]
+                            | keep_out[ends].any(axis=1))
             # (e) the merge adds at most ½ ρ A v² (elastic + kinetic + gravity).
             keep = np.flatnonzero(ok)
             added = merge_energy_change(hierarchy, elements, vertex_ids, triangle_ids,
@@ -249,8 +254,12 @@ class LodPolicy:
             centroid = hierarchy.uv[hierarchy.tri[triangle_ids]].mean(axis=1)
             want |= _near(centroid, detail_points, cfg.detail_radius)
         if in_contact is not None and in_contact.any():
-            touching = in_contact[elements.triangles].sum(axis=1)
-            want |= (touching > 0) & (touching < 3)       # border of the contact patch
+            touching = in_contact[elements.triangles]
+            low, high = touching.min(axis=1), touching.max(axis=1)
+            # The border of the contact patch, and where the cloth meets a
+            # second obstacle (a box's face pushing it on the table): the
+            # contact's edge, where it folds or wrinkles.
+            want |= (low != high) | (high > 1)
         return triangle_ids[want & (levels < cfg.detail_level)]
 
     @staticmethod

@@ -60,6 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .contact import find_contacts, penetrations
+from .contact_rows import TwoNormals
 from .self_contact import merge_contacts
 from .forces import Elements
 from .kernels import stretch_lengths    # compiled when numba is there
@@ -96,9 +97,18 @@ def _stage_distance(contacts, x_start: np.ndarray, x_hat: np.ndarray, elapsed: f
     as pushing out at ``max_speed`` m/s (relative to the surface) for ``E``
     leaves it.  (The base of a later stage may lie inside although the
     particle did not start there: that is the scheme's extrapolation, not a
-    penetration to push out slowly.)"""
+    penetration to push out slowly.)  Rows against a second obstacle
+    (``contacts.second``) get a second column ``(k, 2)``: the same for it."""
     if contacts is None or not len(contacts):
         return None
+    first = _one_stage_distance(contacts, x_start, x_hat, elapsed, max_speed)
+    if not contacts.doubled.any():
+        return first
+    return np.column_stack([first, _one_stage_distance(contacts.second, x_start, x_hat,
+                                                       elapsed, max_speed)])
+
+
+def _one_stage_distance(contacts, x_start, x_hat, elapsed, max_speed):
     d = contacts.distance
     shift = x_hat[contacts.indices] - x_start[contacts.indices]
     d_hat = d + np.einsum("kd,kd->k", shift, contacts.normals)
@@ -446,6 +456,7 @@ class TimeStepper:
             if surface_vn is not None:
                 vn = vn - surface_vn
             velocities[held_contacts.indices] -= vn[:, None] * n_c
+            _drop_second_normal_velocity(held_contacts, velocities)
         # Held particles: exactly on target (the stage velocities agree to rounding).
         positions[indices] = targets
         error = result.error
@@ -457,3 +468,21 @@ class TimeStepper:
         weights = np.ones(len(masses)) if masses.sum() <= 0 else masses
         rms = float(np.sqrt(np.sum(weights * np.sum(error * error, axis=1)) / weights.sum()))
         return ClothState(positions, velocities, state.time + h), report, contacts, rms
+
+
+def _drop_second_normal_velocity(contacts, velocities: np.ndarray) -> None:
+    """Rows against two obstacles: the velocity relative to both surfaces in
+    the plane of their normals goes (``velocities`` ``(n, 3)`` m/s, in place;
+    the first normal's part has gone already, :meth:`TimeStepper._attempt`)."""
+    doubled = contacts.doubled
+    if not doubled.any():
+        return
+    rows = contacts.indices[doubled]
+    first, second = contacts.subset(doubled), contacts.second.subset(doubled)
+    relative = np.zeros((len(rows), 2))
+    for j, part in enumerate((first, second)):
+        speed = part.normal_speed()
+        if speed is not None:
+            relative[:, j] = speed
+    geometry = TwoNormals(first.normals, second.normals)
+    velocities[rows] += geometry.landing(velocities[rows], relative)
