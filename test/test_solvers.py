@@ -139,6 +139,40 @@ def test_the_factorisation_is_analysed_once_per_topology(monkeypatch):
     assert len(analyses) == 2
 
 
+@pytest.mark.parametrize("method", [m for m in ("direct", "block_ldl", "cholmod")
+                                    if m in solvers.available_methods()])
+def test_a_factorisation_is_reused_only_for_the_same_system(method):
+    """Another right-hand side or other prescribed values on the same matrix
+    and filters only back-substitute; new numbers in the same matrix object
+    (the assembly reuses its storage) or another filter factorise again.
+    Every answer is that of a fresh backend."""
+    matrix, rhs, pattern, mesh = system(3)
+    held = constraints_for(mesh)
+    backend = make_solver(method, 1e-8, 100)
+    backend.reset_topology(pattern, mesh.uv)
+
+    def check(matrix, rhs, constraints, factorised):
+        before = solvers._FactoredSystem.factorisations
+        result = backend.solve(matrix, rhs, constraints, None)
+        assert solvers._FactoredSystem.factorisations - before == factorised
+        fresh = make_solver(method, 1e-8, 100)
+        fresh.reset_topology(pattern, mesh.uv)
+        np.testing.assert_allclose(result.dv, fresh.solve(matrix, rhs, constraints, None).dv,
+                                   rtol=0, atol=1e-12 * np.abs(result.dv).max())
+
+    check(matrix, rhs, held, 1)
+    check(matrix, 2.0 * rhs + 1e-3, held, 0)                       # another load
+    other = Constraints(held.indices, held.projectors, -held.prescribed)
+    check(matrix, rhs, other, 0)                                   # other prescribed values
+    turned = held.projectors.copy()
+    turned[-1] = np.diag([1.0, 0.0, 1.0])
+    check(matrix, rhs, Constraints(held.indices, turned, held.prescribed), 1)
+    matrix.data *= 1.5                                             # same object, new numbers
+    check(matrix, rhs, held, 1)
+    backend.reset_topology(pattern, mesh.uv)                        # forgets across topologies
+    check(matrix, rhs, held, 1)
+
+
 @pytest.mark.parametrize("flat", [False, True], ids=["deformed", "flat"])
 def test_multigrid_iterations_do_not_grow_with_the_mesh(flat):
     """Block-Jacobi PCG needs about twice the iterations per halving of the edge;

@@ -30,7 +30,7 @@ except ImportError:             # pragma: no cover - a scipy without it
     _bsr_matvec = _csr_matvec = None
 
 __all__ = ["CsrOperator", "SparsePattern", "PatternStorage", "Constraints", "SolveResult",
-           "filtered_pcg", "project_system", "projected_data", "bsr_product",
+           "filtered_pcg", "project_system", "projected_data", "projected_rhs", "bsr_product",
            "relative_residual", "solve_projected_direct", "block_diagonal_matrix"]
 
 
@@ -446,6 +446,15 @@ def projected_data(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
             data[diagonal] += complement @ matrix.data[diagonal] @ complement
         b = constraints.filter(rhs - bsr_product(matrix, z))
     return data, b, z
+
+
+def projected_rhs(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constraints):
+    """``(b̂, z)`` of :func:`projected_data` without ``Â`` (both ``(n, 3)``):
+    for a solve that reuses a factorisation of the same ``Â``."""
+    z = constraints.start(np.zeros_like(rhs))
+    if not len(constraints.indices):
+        return rhs, z
+    return constraints.filter(rhs - bsr_product(matrix, z)), z
 
 
 def bsr_product(matrix: sp.bsr_matrix, x: np.ndarray) -> np.ndarray:

@@ -40,8 +40,8 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from .linear import (Constraints, SolveResult, SparsePattern, block_diagonal_matrix,
-                     filtered_pcg, project_system, projected_data, relative_residual,
-                     solve_projected_direct)
+                     filtered_pcg, project_system, projected_data, projected_rhs,
+                     relative_residual, solve_projected_direct)
 from .multigrid import VCycle, block_transfers, lattice_hierarchy
 
 __all__ = ["LinearSolver", "make_solver", "METHODS", "available_methods"]
@@ -173,6 +173,7 @@ class LdlDirect(LinearSolver):
         super().reset_topology(pattern, uv)
         self._factor = None
         self._upper = None
+        self._factored = _FactoredSystem()
 
     def _upper_layout(self, projected: sp.bsr_matrix):
         """The permutation from BSR data to the upper triangle in CSC order (once
@@ -206,11 +207,16 @@ class LdlDirect(LinearSolver):
         return order, rows[keep].astype(np.int32), col_ptr
 
     def solve(self, matrix, rhs, constraints, guess):
-        data, b, z = projected_data(matrix, rhs, constraints, self.pattern)
-        if self._upper is None:
-            self._upper = self._upper_layout(matrix)       # Â has A's pattern
-        order, indices, indptr = self._upper
-        self._numeric(data.ravel()[order], indices, indptr, matrix.shape)
+        if self._factor is not None and self._factored.holds(matrix, constraints):
+            b, z = projected_rhs(matrix, rhs, constraints)
+        else:
+            data, b, z = projected_data(matrix, rhs, constraints, self.pattern)
+            if self._upper is None:
+                self._upper = self._upper_layout(matrix)       # Â has A's pattern
+            order, indices, indptr = self._upper
+            self._factored.forget()
+            self._numeric(data.ravel()[order], indices, indptr, matrix.shape)
+            self._factored.remember(matrix, constraints)
         y = self._backsolve(b.ravel()).reshape(-1, 3)
         return _factorised_result(matrix, rhs, constraints, z, y, self.tolerance)
 
@@ -242,6 +248,7 @@ class BlockLdl(LinearSolver):
     def reset_topology(self, pattern, uv, graded=False):
         super().reset_topology(pattern, uv)
         self._symbolic = None
+        self._factored = _FactoredSystem()
 
     def _analyse(self, matrix) -> None:
         kernels = _block_ldl_module()
@@ -259,19 +266,55 @@ class BlockLdl(LinearSolver):
 
     def solve(self, matrix, rhs, constraints, guess):
         kernels = _block_ldl_module()
-        data, b, z = projected_data(matrix, rhs, constraints, self.pattern)
-        if self._symbolic is None:
-            self._analyse(matrix)                       # Â has A's pattern
-        indptr, indices, perm, pinv, parent, pointers = self._symbolic
-        failed = kernels.numeric(indptr, indices, np.ascontiguousarray(data), perm, pinv,
-                                 parent, pointers, self._rows, self._factor,
-                                 self._inverse_diagonal)
-        if failed >= 0:
-            raise np.linalg.LinAlgError(f"block LDLT factorisation failed: singular pivot "
-                                        f"block at particle {int(perm[failed])}")
+        if self._factored.holds(matrix, constraints):
+            b, z = projected_rhs(matrix, rhs, constraints)
+            perm, pointers = self._symbolic[2], self._symbolic[5]
+        else:
+            data, b, z = projected_data(matrix, rhs, constraints, self.pattern)
+            if self._symbolic is None:
+                self._analyse(matrix)                       # Â has A's pattern
+            indptr, indices, perm, pinv, parent, pointers = self._symbolic
+            self._factored.forget()
+            failed = kernels.numeric(indptr, indices, np.ascontiguousarray(data), perm, pinv,
+                                     parent, pointers, self._rows, self._factor,
+                                     self._inverse_diagonal)
+            if failed >= 0:
+                raise np.linalg.LinAlgError(f"block LDLT factorisation failed: singular "
+                                            f"pivot block at particle {int(perm[failed])}")
+            self._factored.remember(matrix, constraints)
         y = kernels.solve(perm, pointers, self._rows, self._factor, self._inverse_diagonal,
                           np.ascontiguousarray(b))
         return _factorised_result(matrix, rhs, constraints, z, y, self.tolerance)
+
+
+class _FactoredSystem:
+    """What a direct backend's current factorisation is of: the matrix (the
+    same object with the same numbers: the assembly reuses its storage) and
+    the constraints' particles and filters.  A solve of the same system with
+    another right-hand side or other prescribed values (the reactions passed
+    to another layer, a friction round that changed no filter) then only
+    back-substitutes.  ``factorisations`` counts the numeric factorisations."""
+
+    factorisations = 0
+
+    def __init__(self):
+        self._key = None
+
+    def holds(self, matrix, constraints) -> bool:
+        key = self._key
+        return (key is not None and key[0] is matrix
+                and np.array_equal(key[1], matrix.data)
+                and np.array_equal(key[2], constraints.indices)
+                and np.array_equal(key[3], constraints.projectors))
+
+    def remember(self, matrix, constraints) -> None:
+        self._key = (matrix, matrix.data.copy(), constraints.indices.copy(),
+                     constraints.projectors.copy())
+        _FactoredSystem.factorisations += 1
+
+    def forget(self) -> None:
+        """Before a factorisation (one that fails leaves nothing valid)."""
+        self._key = None
 
 
 def _factorised_result(matrix, rhs, constraints, z, y, tolerance) -> SolveResult:
