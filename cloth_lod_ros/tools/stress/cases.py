@@ -332,7 +332,7 @@ CASES: tuple[Case, ...] = (
         overrides={},
         # Quick: the box reaches the cloth at 0.55 s and pushes it for 1 s.
         full=Variant(3.0, 5), quick=Variant(1.6, 4),
-        bounds=Bounds(max_strain=_STRAIN),
+        bounds=Bounds(max_strain=_STRAIN, layers=True),
         floor=0.0,              # the table
         driver_work=_pusher_work("pusher"),
     ),

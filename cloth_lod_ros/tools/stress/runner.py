@@ -30,10 +30,11 @@ recorded and checked against explicit bounds:
   in any 1 s window after start-up, below the case's bound (thrashing); the
   deepest level reached where a case is about depth;
 * **solver** — every linear solve converged;
-* **layers** — in the self-collision cases, after every step no two
-  triangles that share no vertex intersect (an independent check,
-  :mod:`~cloth_lod_ros.tools.stress.intersect`); the run also reports how
-  often each self-collision fail-safe fired.
+* **layers** — in the contact cases (``push_with_box``, and the
+  self-collision ones), after every step no two triangles that share no
+  vertex intersect (an independent check,
+  :mod:`~cloth_lod_ros.tools.stress.intersect`); a self-collision run also
+  reports how often each of its fail-safes fired.
 
 Numbers are SI: m, s, m/s, J.
 """
