@@ -114,8 +114,9 @@ class BroadPhase:
         """Padded vertex boxes ``(n, 3)``, triangle boxes ``(t, 3)`` and the
         layered flags ``(t,)`` of a new search (compiled when enabled)."""
         if _kernels.enabled():
+            # (Contiguous arrays: the kernels are compiled, and warmed up, for those.)
             lo, hi, lo_t, hi_t, normals, layered, status = _sk.broad_boxes(
-                x, y, pad, self.triangles, self._uv)
+                np.ascontiguousarray(x), np.ascontiguousarray(y), pad, self.triangles, self._uv)
             if status == _sk.DONE:
                 return lo, hi, lo_t, hi_t, layered
             if status == _sk.SPARSE:        # the hash over a sparse grid: numpy's
@@ -135,7 +136,8 @@ class BroadPhase:
         if c is None or len(c["lo"]) != len(x):
             return False
         if _kernels.enabled():
-            return not _sk.outside(x, y, need, c["lo"], c["hi"])
+            return not _sk.outside(np.ascontiguousarray(x), np.ascontiguousarray(y), need,
+                                   c["lo"], c["hi"])
         return (not np.any(np.minimum(x, y) - need < c["lo"])
                 and not np.any(np.maximum(x, y) + need > c["hi"]))
 

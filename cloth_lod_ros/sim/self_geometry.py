@@ -154,15 +154,18 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
     if not len(lo):
         return np.zeros(0, dtype=bool)
     cell = 1.5 * max(_median(_extent(lo, hi)), 1e-9)
-    origin = _corner(lo, False)
-    dims = np.floor((_corner(hi, True) - origin) / cell).astype(np.int64) + 1
+    origin, top = _corner(lo, False), _corner(hi, True)
+    dims = np.floor((top - origin) / cell).astype(np.int64) + 1
     far = 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad)
-    if _kernels.enabled() and int(dims.prod()) <= 8 * len(lo) + 4096:
+    finite = np.isfinite(far) and np.all(np.isfinite(origin)) and np.all(np.isfinite(top))
+    # (The cell count in floating point: an int64 product of huge dims wraps.)
+    if _kernels.enabled() and finite and dims.prod(dtype=float) <= 8 * len(lo) + 4096:
         # Compiled, on the dense grid (a cloth's bounding box): ~10x faster.
+        # (Only for finite boxes: the kernel indexes cells without checks.)
         out = np.zeros(len(lo), dtype=bool)
         _self_kernels.layered_cells(np.ascontiguousarray(lo), np.ascontiguousarray(hi),
-                               np.ascontiguousarray(uv_lo), np.ascontiguousarray(uv_hi),
-                               np.ascontiguousarray(normals), cell, origin, dims, far, out)
+                                    np.ascontiguousarray(uv_lo), np.ascontiguousarray(uv_hi),
+                                    np.ascontiguousarray(normals), cell, origin, dims, far, out)
         return out
     box, key = _cells(lo, hi, cell, origin, dims)
     key, cells = _dense(key, dims)

@@ -15,8 +15,10 @@ triangles) was most of the time.
   normals and the layered-cell flags of
   :func:`~cloth_lod_ros.sim.self_geometry.layered_boxes` in one call.
 * :func:`layered_cells` - the cell test of ``layered_boxes`` on a dense grid.
-* :func:`overlap_pairs` - every pair of overlapping boxes, tested one by one
-  (the small sets the layered regions give).
+* :func:`overlap_pairs` - every pair of overlapping boxes, by a sweep along x.
+* :func:`may_touch` - a conservative test that no candidate pair can come
+  within reach: the proximity test and the continuous check then skip
+  their narrow phase (which would keep nothing).
 
 Selection follows :mod:`~cloth_lod_ros.sim.kernels` (``CLOTH_LOD_KERNELS``,
 :func:`~cloth_lod_ros.sim.kernels.use`): callers ask ``kernels.enabled()``
@@ -132,7 +134,7 @@ def broad_boxes(x, y, pad, tri, uv):
             high = max(high, hi_t[k, d])
         origin[d] = low
         dims[d] = np.int64(np.floor((high - low) / cell)) + 1
-    if dims[0] * dims[1] * dims[2] > 8 * t + 4096:
+    if float(dims[0]) * float(dims[1]) * float(dims[2]) > 8 * t + 4096:     # (no overflow)
         return lo, hi, lo_t, hi_t, normals, layered, SPARSE
     far = 2.0 * (np.sqrt(3.0) * cell + 2.0 * (0.5 * widest))
     layered_cells(lo_t, hi_t, uv_lo, uv_hi, normals, cell, origin, dims, far, layered)
@@ -148,26 +150,19 @@ def layered_cells(lo, hi, uv_lo, uv_hi, normals, cell, origin, dims, far, out):
     same order (box by box) as the numpy version, so the same flags."""
     cells = dims[0] * dims[1] * dims[2]
     k = lo.shape[0]
-    # Every (box, cell) entry, by box, found once for the three sweeps.
-    span = np.empty((k, 6), np.int64)
-    start = np.zeros(k + 1, np.int64)
-    for b in range(k):
-        count = 1
-        for d in range(3):
-            first = np.int64(np.floor((lo[b, d] - origin[d]) / cell))
-            last = np.int64(np.floor((hi[b, d] - origin[d]) / cell))
-            span[b, d] = first
-            span[b, 3 + d] = last
-            count *= last - first + 1
-        start[b + 1] = start[b] + count
-    entry = np.empty(start[k], np.int64)
-    for b in range(k):
-        e = start[b]
-        for i in range(span[b, 0], span[b, 3] + 1):
-            for j in range(span[b, 1], span[b, 4] + 1):
-                for m in range(span[b, 2], span[b, 5] + 1):
-                    entry[e] = (i * dims[1] + j) * dims[2] + m
-                    e += 1
+    inverse = 1.0 / cell
+
+    def index(a):
+        # floor(a / cell) - a division costs several multiplications, so
+        # a / cell is taken as a * (1 / cell), a few ulps off, and divided
+        # only when that lands within 1e-12 of an integer (where the floor
+        # might differ): the same cells as the division, always.
+        q = a * inverse
+        f = np.floor(q)
+        if q - f < 1e-12 * (abs(q) + 1.0) or f + 1.0 - q < 1e-12 * (abs(q) + 1.0):
+            f = np.floor(a / cell)
+        return np.int64(f)
+
     # Per cell: u, v maxima of the low corners, u, v minima of the high ones,
     # the normals' sum (one row: one cache line per cell visited).
     acc = np.empty((cells, 7))
@@ -179,18 +174,36 @@ def layered_cells(lo, hi, uv_lo, uv_hi, normals, cell, origin, dims, far, out):
         acc[c, 4] = 0.0
         acc[c, 5] = 0.0
         acc[c, 6] = 0.0
-    for b in range(k):                  # the cell sums, box by box
+    # Every (box, cell) entry, by box, kept for the later sweeps; the cell
+    # sums as they are found (box by box).
+    start = np.zeros(k + 1, np.int64)
+    entry = np.empty(8 * k + 8, np.int64)
+    for b in range(k):
+        i0, i1 = index(lo[b, 0] - origin[0]), index(hi[b, 0] - origin[0])
+        j0, j1 = index(lo[b, 1] - origin[1]), index(hi[b, 1] - origin[1])
+        m0, m1 = index(lo[b, 2] - origin[2]), index(hi[b, 2] - origin[2])
+        e = start[b]
+        if e + (i1 - i0 + 1) * (j1 - j0 + 1) * (m1 - m0 + 1) > len(entry):
+            grown = np.empty(2 * len(entry) + (i1 - i0 + 1) * (j1 - j0 + 1) * (m1 - m0 + 1),
+                             np.int64)
+            grown[:e] = entry[:e]
+            entry = grown
         u_lo, v_lo, u_hi, v_hi = uv_lo[b, 0], uv_lo[b, 1], uv_hi[b, 0], uv_hi[b, 1]
         n0, n1, n2 = normals[b, 0], normals[b, 1], normals[b, 2]
-        for e in range(start[b], start[b + 1]):
-            c = entry[e]
-            acc[c, 0] = max(acc[c, 0], u_lo)
-            acc[c, 1] = max(acc[c, 1], v_lo)
-            acc[c, 2] = min(acc[c, 2], u_hi)
-            acc[c, 3] = min(acc[c, 3], v_hi)
-            acc[c, 4] += n0
-            acc[c, 5] += n1
-            acc[c, 6] += n2
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                for m in range(m0, m1 + 1):
+                    c = (i * dims[1] + j) * dims[2] + m
+                    entry[e] = c
+                    e += 1
+                    acc[c, 0] = max(acc[c, 0], u_lo)
+                    acc[c, 1] = max(acc[c, 1], v_lo)
+                    acc[c, 2] = min(acc[c, 2], u_hi)
+                    acc[c, 3] = min(acc[c, 3], v_hi)
+                    acc[c, 4] += n0
+                    acc[c, 5] += n1
+                    acc[c, 6] += n2
+        start[b + 1] = e
     layered = np.empty(cells, np.bool_)
     flagged = False
     for c in range(cells):
