@@ -51,7 +51,7 @@ class BroadPhase:
         the level of detail the topology changes many times between two
         searches that use them, and the compiled search needs none of them."""
         self.triangles = np.ascontiguousarray(triangles, dtype=np.int64)
-        self._uv = np.ascontiguousarray(uv, dtype=np.float64)
+        self._uv = np.array(uv, dtype=np.float64, order="C")     # (a copy, as the boxes were)
         self._edges = self._corner_columns = self._uv_boxes = None
         self.cache = None
 

@@ -101,17 +101,22 @@ def broad_boxes(x, y, pad, tri, uv):
     layered = np.zeros(t, np.bool_)
     if not finite:
         return lo, hi, lo_t, hi_t, normals, layered, NOT_FINITE
+    # (Separate loops: one loop writing five arrays ran at half the speed.)
     for k in range(t):
         p, q, r = tri[k, 0], tri[k, 1], tri[k, 2]
         for d in range(3):
             lo_t[k, d] = min(min(lo[p, d], lo[q, d]), lo[r, d])
             hi_t[k, d] = max(max(hi[p, d], hi[q, d]), hi[r, d])
+        extent[k] = max(max(hi_t[k, 0] - lo_t[k, 0], hi_t[k, 1] - lo_t[k, 1]),
+                        hi_t[k, 2] - lo_t[k, 2])
+    for k in range(t):
+        p, q, r = tri[k, 0], tri[k, 1], tri[k, 2]
         for d in range(2):
             uv_lo[k, d] = min(min(uv[p, d], uv[q, d]), uv[r, d])
             uv_hi[k, d] = max(max(uv[p, d], uv[q, d]), uv[r, d])
-        extent[k] = max(max(hi_t[k, 0] - lo_t[k, 0], hi_t[k, 1] - lo_t[k, 1]),
-                        hi_t[k, 2] - lo_t[k, 2])
-        # The cross product and its norm as SelfCollision._normals writes them.
+    for k in range(t):
+        p, q, r = tri[k, 0], tri[k, 1], tri[k, 2]
+        # The cross product and its norm as BroadPhase._normals writes them.
         e0, e1, e2 = x[q, 0] - x[p, 0], x[q, 1] - x[p, 1], x[q, 2] - x[p, 2]
         f0, f1, f2 = x[r, 0] - x[p, 0], x[r, 1] - x[p, 1], x[r, 2] - x[p, 2]
         n0 = e1 * f2 - e2 * f1
