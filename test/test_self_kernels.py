@@ -183,14 +183,16 @@ def test_the_cache_test_equals_numpy_with_nan():
 @pytest.mark.parametrize("same", [True, False])
 def test_box_pairs_compiled_equal_numpy(same):
     """Random boxes, ties (boxes on a coarse lattice), degenerate (flat)
-    boxes and a NaN bound, few and many (the numpy hash): the same pairs in
-    the same order."""
-    for trial in range(60):
+    boxes and a NaN bound, few and many (the numpy hash), and all
+    overlapping (more pairs than the kernel's first guess): the same pairs
+    in the same order."""
+    for trial in range(64):
         ka, kb = RNG.integers(0, 80, 2) if trial < 50 else RNG.integers(150, 400, 2)
+        size = 0.2 if trial < 60 else 2.0
         lo_a = RNG.random((ka, 3))
-        hi_a = lo_a + RNG.random((ka, 3)) * 0.2
+        hi_a = lo_a + RNG.random((ka, 3)) * size
         lo_b = RNG.random((kb, 3))
-        hi_b = lo_b + RNG.random((kb, 3)) * 0.2
+        hi_b = lo_b + RNG.random((kb, 3)) * size
         if trial % 3 == 0:
             lo_a, hi_a, lo_b, hi_b = (np.round(a * 4.0) / 4.0 for a in (lo_a, hi_a, lo_b, hi_b))
         if trial % 4 == 0 and ka:

@@ -246,12 +246,56 @@ def _first_above(sorted_values, value, strict):
 
 
 @_jit
-def _grow(ia, ib):
-    """``ia``, ``ib`` copied into arrays twice as long."""
-    a, b = np.empty(2 * len(ia), np.int64), np.empty(2 * len(ib), np.int64)
-    a[:len(ia)] = ia
-    b[:len(ib)] = ib
-    return a, b
+def _sweep(lo_a, hi_a, lo_b, hi_b, same, ax, ia, ib):
+    """The overlapping pairs of :func:`overlap_pairs` by a sweep along axis
+    ``ax``: their count, the first ``len(ia)`` of them stored in ``ia``/``ib``
+    (the caller sweeps again with longer arrays if that was too few: growing
+    them in the loop made every test several times slower)."""
+
+    def overlap(i, j):          # (a closure: inlined, where a call per test cost 25 ns)
+        return (lo_a[i, 0] <= hi_b[j, 0] and lo_b[j, 0] <= hi_a[i, 0]
+                and lo_a[i, 1] <= hi_b[j, 1] and lo_b[j, 1] <= hi_a[i, 1]
+                and lo_a[i, 2] <= hi_b[j, 2] and lo_b[j, 2] <= hi_a[i, 2])
+
+    ka, kb = lo_a.shape[0], lo_b.shape[0]
+    count = 0
+    order_a = np.argsort(lo_a[:, ax])
+    start_a = lo_a[order_a, ax]
+    if same:
+        for p in range(ka):
+            i = order_a[p]
+            for q in range(p + 1, ka):
+                if not start_a[q] <= hi_a[i, ax]:     # (NaN sorts last: stops too)
+                    break
+                j = order_a[q]
+                if overlap(i, j):
+                    if count < len(ia):
+                        ia[count], ib[count] = min(i, j), max(i, j)
+                    count += 1
+        return count
+    order_b = np.argsort(lo_b[:, ax])
+    start_b = lo_b[order_b, ax]
+    # a starts first (or together): b starts within a's range ...
+    for i in range(ka):
+        for q in range(_first_above(start_b, lo_a[i, ax], False), kb):
+            if not start_b[q] <= hi_a[i, ax]:
+                break
+            j = order_b[q]
+            if overlap(i, j):
+                if count < len(ia):
+                    ia[count], ib[count] = i, j
+                count += 1
+    # ... or b starts strictly first: a starts within b's range.
+    for j in range(kb):
+        for q in range(_first_above(start_a, lo_b[j, ax], True), ka):
+            if not start_a[q] <= hi_b[j, ax]:
+                break
+            i = order_a[q]
+            if overlap(i, j):
+                if count < len(ia):
+                    ia[count], ib[count] = i, j
+                count += 1
+    return count
 
 
 @_jit
@@ -260,61 +304,60 @@ def overlap_pairs(lo_a, hi_a, lo_b, hi_b, same):
     ``(ka, 3)`` and ``lo_b``/``hi_b`` ``(kb, 3)`` (m), sorted by ``ia`` then
     ``ib``; ``same``: the two sets are one (pass it twice), pairs ``ia < ib``
     only.  The pairs :func:`~cloth_lod_ros.sim.self_geometry.box_pairs` gives
-    (a box with a NaN bound overlaps nothing), found by a sweep along x: two
-    boxes overlap along x only if the one starting first (lower ``lo.x``)
-    reaches the other's start, so each box tests only those starting within
-    its own x range - every overlapping pair once."""
-
-    def overlap(i, j):          # (a closure: inlined, where a call per test cost 25 ns)
-        return (lo_a[i, 0] <= hi_b[j, 0] and lo_b[j, 0] <= hi_a[i, 0]
-                and lo_a[i, 1] <= hi_b[j, 1] and lo_b[j, 1] <= hi_a[i, 1]
-                and lo_a[i, 2] <= hi_b[j, 2] and lo_b[j, 2] <= hi_a[i, 2])
-
+    (a box with a NaN bound overlaps nothing), found by a sweep along one
+    axis: two boxes overlap along it only if the one starting first (lower
+    ``lo``) reaches the other's start, so each box tests only those starting
+    within its own range - every overlapping pair once.  The axis: the one
+    along which the boxes' starts spread over most box widths (the fewest
+    tests; a fold of cloth is thin across, wide along)."""
     ka, kb = lo_a.shape[0], lo_b.shape[0]
-    ia = np.empty(4 * (ka + kb) + 16, np.int64)
-    ib = np.empty(4 * (ka + kb) + 16, np.int64)
-    count = 0
-    order_a = np.argsort(lo_a[:, 0])
-    start_a = lo_a[order_a, 0]
-    if same:
-        for p in range(ka):
-            i = order_a[p]
-            for q in range(p + 1, ka):
-                if not start_a[q] <= hi_a[i, 0]:     # (NaN sorts last: stops too)
-                    break
-                j = order_a[q]
-                if overlap(i, j):
-                    if count == len(ia):
-                        ia, ib = _grow(ia, ib)
-                    ia[count], ib[count] = min(i, j), max(i, j)
-                    count += 1
-    else:
-        order_b = np.argsort(lo_b[:, 0])
-        start_b = lo_b[order_b, 0]
-        # a starts first (or together): b starts within a's range ...
-        for i in range(ka):
-            for q in range(_first_above(start_b, lo_a[i, 0], False), kb):
-                if not start_b[q] <= hi_a[i, 0]:
-                    break
-                j = order_b[q]
-                if overlap(i, j):
-                    if count == len(ia):
-                        ia, ib = _grow(ia, ib)
-                    ia[count], ib[count] = i, j
-                    count += 1
-        # ... or b starts strictly first: a starts within b's range.
-        for j in range(kb):
-            for q in range(_first_above(start_a, lo_b[j, 0], True), ka):
-                if not start_a[q] <= hi_b[j, 0]:
-                    break
-                i = order_a[q]
-                if overlap(i, j):
-                    if count == len(ia):
-                        ia, ib = _grow(ia, ib)
-                    ia[count], ib[count] = i, j
-                    count += 1
-    order = np.argsort(ia[:count] * kb + ib[:count])
-    return ia[order], ib[order]
+    ax, best = 0, -1.0
+    for d in range(3):
+        low, high, width = np.inf, -np.inf, 0.0
+        for lo, hi in ((lo_a, hi_a), (lo_b, hi_b)):
+            for i in range(lo.shape[0]):
+                if lo[i, d] <= hi[i, d]:            # (finite, not inverted)
+                    low, high = min(low, lo[i, d]), max(high, lo[i, d])
+                    width += hi[i, d] - lo[i, d]
+        spread = (high - low) / (width / (ka + kb) + 1e-300) if high >= low else 0.0
+        if spread > best:
+            ax, best = d, spread
+    ia = np.empty(16 * (ka + kb), np.int64)
+    ib = np.empty(16 * (ka + kb), np.int64)
+    count = _sweep(lo_a, hi_a, lo_b, hi_b, same, ax, ia, ib)
+    if count > len(ia):
+        ia = np.empty(count, np.int64)
+        ib = np.empty(count, np.int64)
+        _sweep(lo_a, hi_a, lo_b, hi_b, same, ax, ia, ib)
+    return _by_first(ia[:count], ib[:count], ka)
+
+
+@_jit
+def _by_first(ia, ib, ka):
+    """Pairs ``(ia, ib)`` (distinct, ``ia < ka``) sorted by ``ia`` then ``ib``:
+    bucketed by ``ia``, each bucket (the few boxes one box meets) sorted by
+    insertion - an argsort of the keys cost as much as the sweep, and more
+    on the ordered runs a sweep emits."""
+    start = np.zeros(ka + 1, np.int64)
+    for k in range(len(ia)):
+        start[ia[k] + 1] += 1
+    for i in range(ka):
+        start[i + 1] += start[i]
+    fill = start[:ka].copy()
+    out_a = np.empty(len(ia), np.int64)
+    out_b = np.empty(len(ib), np.int64)
+    for k in range(len(ia)):
+        out_b[fill[ia[k]]] = ib[k]
+        fill[ia[k]] += 1
+    for i in range(ka):
+        for p in range(start[i], start[i + 1]):
+            out_a[p] = i
+            value, q = out_b[p], p
+            while q > start[i] and out_b[q - 1] > value:
+                out_b[q] = out_b[q - 1]
+                q -= 1
+            out_b[q] = value
+    return out_a, out_b
 
 
 
