@@ -360,7 +360,6 @@ def _by_first(ia, ib, ka):
     return out_a, out_b
 
 
-
 @_jit
 def _spread(u, side_a, na, side_b, nb):
     """``max |u_i − u_j|`` over particles ``i`` of ``side_a[:na]``, ``j`` of ``side_b[:nb]``."""
@@ -395,22 +394,23 @@ def _axis_gap(x, side_a, na, side_b, nb):
     """Gap between the projections of the points ``x[side_a[:na]]`` and
     ``x[side_b[:nb]]`` on the line through their centroids, m (a projection
     shortens every distance: a lower bound of the sides' distance)."""
-    w = np.zeros(3)
-    for d in range(3):
-        for p in range(na):
-            w[d] -= x[side_a[p], d] / na
-        for q in range(nb):
-            w[d] += x[side_b[q], d] / nb
-    length = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    w0 = w1 = w2 = 0.0
+    for p in range(na):
+        i = side_a[p]
+        w0, w1, w2 = w0 - x[i, 0] / na, w1 - x[i, 1] / na, w2 - x[i, 2] / na
+    for q in range(nb):
+        j = side_b[q]
+        w0, w1, w2 = w0 + x[j, 0] / nb, w1 + x[j, 1] / nb, w2 + x[j, 2] / nb
+    length = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
     if not length > 0.0:
         return 0.0
     top_a, low_b = -np.inf, np.inf
     for p in range(na):
         i = side_a[p]
-        top_a = max(top_a, (x[i, 0] * w[0] + x[i, 1] * w[1] + x[i, 2] * w[2]) / length)
+        top_a = max(top_a, (x[i, 0] * w0 + x[i, 1] * w1 + x[i, 2] * w2) / length)
     for q in range(nb):
         j = side_b[q]
-        low_b = min(low_b, (x[j, 0] * w[0] + x[j, 1] * w[1] + x[j, 2] * w[2]) / length)
+        low_b = min(low_b, (x[j, 0] * w0 + x[j, 1] * w1 + x[j, 2] * w2) / length)
     return max(low_b - top_a, 0.0)
 
 
