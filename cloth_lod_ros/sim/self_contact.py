@@ -14,7 +14,8 @@ before it did not suffice:
    predicted one.  Candidates come from a spatial hash that first asks which
    cells may hold two layers at all (:func:`~cloth_lod_ros.sim.self_geometry.layered_boxes`:
    a cloth without folds stops there) and are kept while the cloth stays
-   inside their padded boxes (a Verlet list).  The particles of side A that
+   inside their padded boxes (a Verlet list, :mod:`~cloth_lod_ros.sim.self_broad`;
+   compiled when the kernels are).  The particles of side A that
    carry a real share of the contact point (weight ≥ 0.25, or the largest)
    get the per-particle velocity constraint of obstacle contact
    (:class:`~cloth_lod_ros.sim.contact.ContactSet`): normal ``n``, gap −
@@ -63,10 +64,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels as _kernels
+from . import self_kernels as _self_kernels
 from .contact import ContactSet
 from .layer_reactions import common_velocity
-from .self_geometry import (box_pairs, edges_of, ee_crossing, layered_boxes,
-                            point_triangle, segment_segment, vf_crossing)
+from .self_broad import BroadPhase
+from .self_geometry import ee_crossing, point_triangle, segment_segment, vf_crossing
 
 __all__ = ["SelfCollision", "SelfPairs", "SelfCounters", "merge_contacts"]
 
@@ -170,16 +173,22 @@ class SelfCollision:
         self.counters = SelfCounters()
         self.last_constraints = 0       # self-contact constraints of the last solve
         self._triangles = None
-        self._cache = None
-        self.triangles = np.zeros((0, 3), np.int64)
-        self._edges = np.zeros((0, 2), np.int64)
+        #: Candidate pairs and their Verlet cache (:mod:`~cloth_lod_ros.sim.self_broad`).
+        self.broad = BroadPhase(config.thickness, self.counters)
+
+    @property
+    def triangles(self) -> np.ndarray:
+        """``(t, 3)`` the active triangles (compact vertex indices)."""
+        return self.broad.triangles
 
     @property
     def edges(self) -> np.ndarray:
         """``(e, 2)`` the mesh's edges (sorted vertex pairs)."""
-        if self._edges is None:
-            self._edges = edges_of(self.triangles)
-        return self._edges
+        return self.broad.edges
+
+    @property
+    def _cache(self):
+        return self.broad.cache
 
     @property
     def eta(self) -> float:
@@ -189,52 +198,20 @@ class SelfCollision:
 
     def set_topology(self, triangles: np.ndarray, uv: np.ndarray) -> None:
         """Use the active triangles ``(t, 3)`` (compact vertex indices) and the
-        particles' rest coordinates ``uv`` ``(n, 2)`` (m); edges and material
-        boxes are rebuilt only when the array is a new one (a topology change)."""
+        particles' rest coordinates ``uv`` ``(n, 2)`` (m); the cached broad
+        phase is dropped only when the array is a new one (a topology change)."""
         if triangles is self._triangles:
             return
         start = _time.perf_counter()
         self._triangles = triangles
-        self.triangles = np.asarray(triangles, dtype=np.int64)
-        self._edges = None              # built when a pair search first needs them
-        # Each corner's column on its own: gathers of (t,) index arrays and
-        # element-wise minima instead of reductions along a (t, 3) axis,
-        # several times slower in numpy.
-        self._corners = tuple(np.ascontiguousarray(self.triangles[:, k]) for k in range(3))
-        # Stored by columns (Fortran order): the hash reads u and v apart.
-        self.uv_lo, self.uv_hi = (np.asfortranarray(b) for b in self._triangle_boxes(uv, uv))
-        self._cache = None
+        self.broad.set_topology(triangles, uv)
         self.counters.ms += 1e3 * (_time.perf_counter() - start)
 
     # -- pairs ----------------------------------------------------------------
-    def _triangle_boxes(self, lo: np.ndarray, hi: np.ndarray):
-        """``(t, k)`` bounds of each triangle's corners' boxes ``lo``/``hi`` ``(n, k)``."""
-        t0, t1, t2 = self._corners
-        return (np.minimum(np.minimum(lo.take(t0, 0), lo.take(t1, 0)), lo.take(t2, 0)),
-                np.maximum(np.maximum(hi.take(t0, 0), hi.take(t1, 0)), hi.take(t2, 0)))
-
-    def _normals(self, x: np.ndarray) -> np.ndarray:
-        """``(t, 3)`` unit normals of the triangles at ``x`` (m)."""
-        t0, t1, t2 = self._corners
-        a = x.take(t0, 0)
-        e, f = x.take(t1, 0) - a, x.take(t2, 0) - a
-        # The cross product column by column, stored by columns (Fortran
-        # order): the hash reads the components apart.
-        n = np.empty(a.shape, order="F")
-        n[:, 0] = e[:, 1] * f[:, 2] - e[:, 2] * f[:, 1]
-        n[:, 1] = e[:, 2] * f[:, 0] - e[:, 0] * f[:, 2]
-        n[:, 2] = e[:, 0] * f[:, 1] - e[:, 1] * f[:, 0]
-        norm = np.sqrt(n[:, 0] * n[:, 0] + n[:, 1] * n[:, 1] + n[:, 2] * n[:, 2])
-        n /= np.maximum(norm, 1e-300)[:, None]
-        return n
-
-    @staticmethod
-    def _ee_candidates(edges, lo_e, hi_e):
-        i, j = box_pairs(lo_e, hi_e)
-        e1, e2 = edges.take(i, 0), edges.take(j, 0)
-        keep = ((e1[:, 0] != e2[:, 0]) & (e1[:, 0] != e2[:, 1])
-                & (e1[:, 1] != e2[:, 0]) & (e1[:, 1] != e2[:, 1]))       # no shared end
-        return e1[keep], e2[keep]
+    def _broad(self, x: np.ndarray, y: np.ndarray, need: float) -> dict:
+        """Candidates for the boxes spanning ``x`` to ``y`` padded by ``need`` m
+        (:meth:`~cloth_lod_ros.sim.self_broad.BroadPhase.query`)."""
+        return self.broad.query(x, y, need)
 
     @staticmethod
     def _vf_pairs(x, verts, tris):
@@ -255,50 +232,6 @@ class SelfCollision:
         gap = np.einsum("kj,kjd->kd", wa, x[a]) - np.einsum("kj,kjd->kd", wb, x[b])
         return (a, wa, b, wb), gap
 
-    def _broad(self, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, need: float) -> dict:
-        """Candidate pairs whose vertex boxes ``lo``/``hi`` ``(n, 3)`` (m),
-        padded by ``need`` m, may overlap.  Built for boxes padded by at least
-        half the contact band plus a margin of one thickness, and reused while
-        later padded boxes stay inside them (a Verlet list: a cloth at rest on
-        itself pays the broad phase once, not every step)."""
-        c = self._cache
-        if (c is not None and len(c["lo"]) == len(lo)
-                and not np.any(lo - need < c["lo"]) and not np.any(hi + need > c["hi"])):
-            return c
-        pad = max(need, self.config.thickness) + self.config.thickness
-        lo, hi = lo - pad, hi + pad
-        t = self.triangles
-        lo_t, hi_t = self._triangle_boxes(lo, hi)
-        empty = np.zeros(0, np.int64)
-        c = dict(lo=lo, hi=hi, verts=empty, tris=np.zeros((0, 3), np.int64),
-                 e1=np.zeros((0, 2), np.int64), e2=np.zeros((0, 2), np.int64), narrow=None,
-                 layered=False)
-        self._cache = c
-        self.counters.broad += 1
-        # Only if a cell may hold two layers (material spread, folded faces).
-        layered = layered_boxes(lo_t, hi_t, self.uv_lo, self.uv_hi,
-                                0.5 * float((hi - lo).max(initial=0.0)), self._normals(x))
-        if not layered.any():
-            return c
-        c["layered"] = True
-        # The pair search covers the flagged triangles, their corners and
-        # the edges between those corners.
-        tri_ids = np.flatnonzero(layered)
-        active = np.zeros(len(lo), bool)
-        active[t.take(tri_ids, 0).ravel()] = True
-        vert_ids = np.flatnonzero(active)
-        it, iv = box_pairs(lo_t.take(tri_ids, 0), hi_t.take(tri_ids, 0),
-                           lo.take(vert_ids, 0), hi.take(vert_ids, 0))
-        verts, tris = vert_ids.take(iv), t.take(tri_ids.take(it), 0)
-        keep = (tris[:, 0] != verts) & (tris[:, 1] != verts) & (tris[:, 2] != verts)
-        edges = self.edges
-        e = edges[active.take(edges[:, 0]) & active.take(edges[:, 1])]
-        p, q = e[:, 0], e[:, 1]
-        e1, e2 = self._ee_candidates(e, np.minimum(lo.take(p, 0), lo.take(q, 0)),
-                                     np.maximum(hi.take(p, 0), hi.take(q, 0)))
-        c.update(verts=verts[keep], tris=tris[keep], e1=e1, e2=e2)
-        return c
-
     def _narrow(self, c: dict, x: np.ndarray):
         """Sides and gap vectors of ``c``'s candidates at ``x`` (cached for the
         same array: the continuous check of a step reuses its start's)."""
@@ -313,6 +246,18 @@ class SelfCollision:
     def _none(c: dict) -> bool:
         return not len(c["verts"]) and not len(c["e1"])
 
+    @staticmethod
+    def _may_touch(c: dict, x: np.ndarray, u: np.ndarray, limit: float, scale: float) -> bool:
+        """Whether a candidate of ``c`` may come within ``limit`` m at ``x``
+        with ``u`` ``(n, 3)`` times ``scale`` the most its gap can close
+        (:func:`~cloth_lod_ros.sim.self_kernels.may_touch`, conservative: a
+        False skips a narrow phase that would keep nothing).  Always True on
+        the numpy path, which runs every test."""
+        if not _kernels.enabled():
+            return True
+        return _self_kernels.may_touch(np.ascontiguousarray(x), np.ascontiguousarray(u),
+                                       c["verts"], c["tris"], c["e1"], c["e2"], limit, scale)
+
     def proximity(self, x: np.ndarray, v: np.ndarray, h: float) -> SelfPairs:
         """Contact pairs at the start of a step: closer than ``2·thickness``, or
         getting so within ``h`` s at the start velocities.
@@ -324,10 +269,10 @@ class SelfCollision:
         band = 2.0 * self.config.thickness
         # Boxes swept over the predicted motion and padded by the thickness.
         xp = x + h * v
-        c = self._broad(x, np.minimum(x, xp), np.maximum(x, xp), 0.5 * band)
+        c = self._broad(x, xp, 0.5 * band)
         counters = self.counters
         counters.attempts += 1
-        if self._none(c):
+        if self._none(c) or not self._may_touch(c, x, v, band, h):
             counters.ms += 1e3 * (_time.perf_counter() - start)
             return SelfPairs.empty()
         parts = []
@@ -359,11 +304,11 @@ class SelfCollision:
         motion)."""
         start = _time.perf_counter()
         eta = self.eta
-        c = self._broad(x0, np.minimum(x0, x1), np.maximum(x0, x1), 0.5 * eta)
-        if self._none(c):
+        c = self._broad(x0, x1, 0.5 * eta)
+        step = None if self._none(c) else x1 - x0
+        if step is None or not self._may_touch(c, x0, step, eta, 1.0):
             self.counters.ms += 1e3 * (_time.perf_counter() - start)
             return SelfPairs.empty()
-        step = x1 - x0
         move = np.linalg.norm(step, axis=1)
         parts = []
         for kind, ((a, wa, b, wb), gap) in zip(("vf", "ee"), self._narrow(c, x0)):
@@ -523,7 +468,7 @@ class SelfCollision:
         if last is not None and not last["layered"] and len(last["lo"]) == len(x):
             self.counters.ms += 1e3 * (_time.perf_counter() - start)
             return out
-        c = self._broad(x, x, x, 0.5 * distance)
+        c = self._broad(x, x, 0.5 * distance)
         if len(c["verts"]):
             (_, _, _, _), gap = self._vf_pairs(x, c["verts"], c["tris"])
             close = np.linalg.norm(gap, axis=1) < distance
@@ -550,7 +495,7 @@ class SelfCollision:
             return out
         thickness = self.config.thickness
         ahead = x if v is None else x + h * v
-        c = self._broad(x, np.minimum(x, ahead), np.maximum(x, ahead), 0.5 * thickness)
+        c = self._broad(x, ahead, 0.5 * thickness)
         mask = np.zeros(len(x), bool)
         mask[moved] = True
         keep = mask[c["verts"]]

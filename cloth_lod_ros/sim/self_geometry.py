@@ -1,5 +1,7 @@
 """Geometry of self-collision (design §3): broad phase, closest points and
-continuous (swept) tests, vectorised over many pairs.  Numpy only.
+continuous (swept) tests, vectorised over many pairs.  Numpy, the
+reference; :func:`layered_boxes` and :func:`box_pairs` run compiled twins from
+:mod:`~cloth_lod_ros.sim.self_kernels` when the kernels are enabled.
 
 * :func:`layered_boxes` - a hash of the triangles' boxes asking only
   which cells may hold two layers (cloth far apart in the material, or faces
@@ -33,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import kernels as _kernels
+from . import self_kernels as _self_kernels
 
 __all__ = ["box_pairs", "layered_boxes", "point_triangle", "segment_segment", "vf_crossing",
            "ee_crossing", "edges_of"]
@@ -40,6 +43,7 @@ __all__ = ["box_pairs", "layered_boxes", "point_triangle", "segment_segment", "v
 
 #: Up to this many candidate pairs, :func:`box_pairs` tests them all directly.
 _ALL_PAIRS = 1 << 15
+
 
 
 def edges_of(triangles: np.ndarray) -> np.ndarray:
@@ -150,15 +154,18 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
     if not len(lo):
         return np.zeros(0, dtype=bool)
     cell = 1.5 * max(_median(_extent(lo, hi)), 1e-9)
-    origin = _corner(lo, False)
-    dims = np.floor((_corner(hi, True) - origin) / cell).astype(np.int64) + 1
+    origin, top = _corner(lo, False), _corner(hi, True)
+    dims = np.floor((top - origin) / cell).astype(np.int64) + 1
     far = 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad)
-    if _kernels.enabled() and int(dims.prod()) <= 8 * len(lo) + 4096:
+    finite = np.isfinite(far) and np.all(np.isfinite(origin)) and np.all(np.isfinite(top))
+    # (The cell count in floating point: an int64 product of huge dims wraps.)
+    if _kernels.enabled() and finite and dims.prod(dtype=float) <= 8 * len(lo) + 4096:
         # Compiled, on the dense grid (a cloth's bounding box): ~10x faster.
+        # (Only for finite boxes: the kernel indexes cells without checks.)
         out = np.zeros(len(lo), dtype=bool)
-        _kernels.layered_cells(np.ascontiguousarray(lo), np.ascontiguousarray(hi),
-                               np.ascontiguousarray(uv_lo), np.ascontiguousarray(uv_hi),
-                               np.ascontiguousarray(normals), cell, origin, dims, far, out)
+        _self_kernels.layered_cells(np.ascontiguousarray(lo), np.ascontiguousarray(hi),
+                                    np.ascontiguousarray(uv_lo), np.ascontiguousarray(uv_hi),
+                                    np.ascontiguousarray(normals), cell, origin, dims, far, out)
         return out
     box, key = _cells(lo, hi, cell, origin, dims)
     key, cells = _dense(key, dims)
@@ -197,6 +204,12 @@ def box_pairs(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray | None = None
         lo_b, hi_b = lo_a, hi_a
     if not len(lo_a) or not len(lo_b):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    if _kernels.enabled():
+        # Compiled: a sweep along x, a few microseconds where the numpy
+        # calls below cost a hundred or more.
+        return _self_kernels.overlap_pairs(np.ascontiguousarray(lo_a), np.ascontiguousarray(hi_a),
+                                           np.ascontiguousarray(lo_b), np.ascontiguousarray(hi_b),
+                                           same)
     if len(lo_a) * len(lo_b) <= _ALL_PAIRS:
         # Few boxes (a small layered region): every pair at once costs a
         # dozen numpy calls, the hash over a hundred.
