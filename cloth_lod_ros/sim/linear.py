@@ -63,7 +63,7 @@ class SparsePattern:
         self._block_slots = None
         # Compiled when numba is there: the same arrays, bitwise, without the
         # key tables and dozens of small numpy passes (topology_kernels.py).
-        built = _topology.sparse_pattern(n, element_vertices, self._all_slots)
+        built = _topology.sparse_pattern(n, element_vertices, self._all_slots, storage)
         if built is not None:
             self.indices, self.indptr, self.diagonal_block = built
             self.block_count = len(self.indices)

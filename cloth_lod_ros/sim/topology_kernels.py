@@ -204,11 +204,13 @@ def precompute(mesh: _mesh48.RestMesh) -> _forces.Elements:
 
 
 @_jit
-def _pattern(n, kinds, slots):
+def _pattern(n, kinds, slots, scratch):
     """linear.SparsePattern's block pattern and entry slots.
 
     Args: n vertices; kinds a tuple of ``(e, k)`` int64 element vertex
-    arrays; slots ``(9 Σ e k²,)`` int64, written.  The blocks are the
+    arrays; slots ``(9 Σ e k²,)`` int64, written; scratch int64 of at least
+    ``3 Σ e k² + 2n`` (contents undefined; the large temporaries live there,
+    as fresh pages of that size would cost a page fault each).  The blocks are the
     distinct vertex pairs of all elements plus every ``(i, i)``, sorted by
     row then column (the reference's sorted keys ``i·n + j``).  Every pair
     entry goes to its row's bucket (a counting sort); per row, the distinct
@@ -231,8 +233,9 @@ def _pattern(n, kinds, slots):
         count[r + 1] += count[r] + 1                # + 1: the diagonal block, last
     # Bucket position of every pair entry, in (kind, e, i, j) order.
     fill = count[:n].copy()
-    columns = np.empty(count[n], np.int64)
-    position = np.empty(entries, np.int64)
+    columns = scratch[:count[n]]        # each pair's column, then its block
+    position = scratch[count[n]:count[n] + entries]
+    found = scratch[count[n] + entries:2 * count[n] + entries]
     g = 0
     for v in kinds:
         for q in range(v.shape[0]):
@@ -245,9 +248,7 @@ def _pattern(n, kinds, slots):
                     g += 1
     for r in range(n):
         columns[fill[r]] = r
-    indices = np.empty(count[n], np.int32)
     indptr = np.empty(n + 1, np.int32)
-    block_of = np.empty(count[n], np.int64)
     mark = np.full(n, -1, np.int64)
     where = np.empty(n, np.int64)
     unique = np.empty(n, np.int64)
@@ -266,10 +267,10 @@ def _pattern(n, kinds, slots):
                 unique[s] = c
                 u += 1
         for s in range(u):
-            indices[blocks + s] = unique[s]
+            found[blocks + s] = unique[s]
             where[unique[s]] = blocks + s
         for p in range(count[r], count[r + 1]):
-            block_of[p] = where[columns[p]]
+            columns[p] = where[columns[p]]
         diagonal[r] = where[r]
         blocks += u
         indptr[r + 1] = blocks
@@ -284,7 +285,7 @@ def _pattern(n, kinds, slots):
         for q in range(v.shape[0]):
             for i in range(k):
                 for j in range(k):
-                    slot = 9 * block_of[position[g]]
+                    slot = 9 * columns[position[g]]
                     row[3 * j], row[3 * j + 1], row[3 * j + 2] = slot, slot + 1, slot + 2
                     g += 1
                 out = slots[written:written + 9 * k]
@@ -292,24 +293,32 @@ def _pattern(n, kinds, slots):
                     for t in range(3 * k):
                         out[3 * k * a + t] = row[t] + 3 * a
                 written += 9 * k
-    return True, indices[:blocks].copy(), indptr, diagonal
+    indices = np.empty(blocks, np.int32)
+    for s in range(blocks):
+        indices[s] = found[s]
+    return True, indices, indptr, diagonal
 
 
-def sparse_pattern(n: int, element_vertices: list[np.ndarray], slots: np.ndarray):
+def sparse_pattern(n: int, element_vertices: list[np.ndarray], slots: np.ndarray,
+                   storage=None):
     """The compiled twin of :class:`~cloth_lod_ros.sim.linear.SparsePattern`'s
     build: ``(indices (blocks,) int32, indptr (n + 1,) int32, diagonal_block
     (n,) int64)`` with the entry slots written into ``slots`` (int64, of the
     pattern's size); None when the reference is to build it (kernels off, no
     elements, an index outside ``[0, n)``).
 
-    Args: n vertices; element_vertices ``(e, k)`` int64 arrays.
+    Args: n vertices; element_vertices ``(e, k)`` int64 arrays; storage the
+    :class:`~cloth_lod_ros.sim.linear.PatternStorage` whose scratch table to
+    use (None: a fresh one).
     """
     if not _kernels.enabled() or not element_vertices or slots.dtype != np.int64:
         return None
     kinds = tuple(np.ascontiguousarray(v) for v in element_vertices)
     if any(v.ndim != 2 or v.dtype != np.int64 for v in kinds):
         return None
-    ok, indices, indptr, diagonal = _pattern(n, kinds, slots)
+    size = 3 * (len(slots) // 9) + 2 * n
+    scratch = storage.rank_table(size) if storage is not None else np.empty(size, np.int64)
+    ok, indices, indptr, diagonal = _pattern(n, kinds, slots, scratch)
     return (indices, indptr, diagonal) if ok else None
 
 
