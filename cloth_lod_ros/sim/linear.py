@@ -22,6 +22,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import kernels as _kernels
+from . import topology_kernels as _topology
 
 try:        # the compiled kernel behind scipy's CSR products (see CsrOperator)
     from scipy.sparse._sparsetools import bsr_matvec as _bsr_matvec
@@ -53,6 +54,20 @@ class SparsePattern:
                  storage: "PatternStorage | None" = None):
         self.vertex_count = n = int(vertex_count)
         element_vertices = [np.asarray(v, dtype=np.int64) for v in element_vertices]
+        self.shape = (3 * n, 3 * n)
+        # Its storage is best reused (PatternStorage).
+        size = 9 * sum(v.size * v.shape[1] for v in element_vertices)
+        self._all_slots = (storage.take_slots(size) if storage is not None
+                           else np.empty(size, dtype=np.int64))
+        self._element_shapes = [v.shape for v in element_vertices]
+        self._block_slots = None
+        # Compiled when numba is there: the same arrays, bitwise, without the
+        # key tables and dozens of small numpy passes (topology_kernels.py).
+        built = _topology.sparse_pattern(n, element_vertices, self._all_slots, storage)
+        if built is not None:
+            self.indices, self.indptr, self.diagonal_block = built
+            self.block_count = len(self.indices)
+            return
         keys = []
         for v in element_vertices:
             # Key i·n + j of every vertex pair (i, j) of every element, in
@@ -67,19 +82,12 @@ class SparsePattern:
         self.block_count = len(unique_keys)
         self.indices = (unique_keys % n).astype(np.int32)
         self.indptr = np.searchsorted(unique_keys // n, np.arange(n + 1)).astype(np.int32)
-        self.shape = (3 * n, 3 * n)
         # Entry (e, i, a, j, b) lives at data[block(e,i,j), a, b]: written in
         # place, one pass per element kind (this array is the largest thing a
         # topology change builds).  A gather of whole element rows through a
         # (i, a, j, b) -> (i, j) template, then one add of 3a + b: broadcasting
         # over the 3 × 3 axes directly makes numpy loop over length-3 rows
         # (~4x slower; it was most of a topology change's pattern cost).
-        # Its storage is best reused (PatternStorage).
-        size = 9 * sum(v.size * v.shape[1] for v in element_vertices)
-        self._all_slots = (storage.take_slots(size) if storage is not None
-                           else np.empty(size, dtype=np.int64))
-        self._element_shapes = [v.shape for v in element_vertices]
-        self._block_slots = None
         offset = written = 0
         for v in element_vertices:
             e, k = v.shape

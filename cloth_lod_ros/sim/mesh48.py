@@ -73,7 +73,10 @@ class RestMesh:
     def hinges(self) -> "Hinges":
         """Interior edges with their two opposite vertices (cached per topology)."""
         if "hinges" not in self._cache:
-            self._cache["hinges"] = build_hinges(self.triangles, self.vertex_count)
+            # Compiled when numba is there (the same arrays; topology_kernels
+            # imports this module, hence here).
+            from .topology_kernels import build_hinges as compiled
+            self._cache["hinges"] = compiled(self.triangles, self.vertex_count)
         return self._cache["hinges"]
 
 

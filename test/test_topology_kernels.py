@@ -1,0 +1,124 @@
+"""The compiled topology kernels equal the numpy reference bitwise."""
+
+import numpy as np
+import pytest
+
+from cloth_lod_ros.sim import ClothSim, kernels, linear, topology_kernels as tk
+from cloth_lod_ros.sim import forces, mesh48
+from cloth_lod_ros.sim.config import load_scene
+from cloth_lod_ros.sim.mesh48 import MeshError, RestMesh, base_mesh, refine_uniform
+
+pytestmark = pytest.mark.skipif(not kernels.available, reason="numba not installed")
+
+
+@pytest.fixture(autouse=True)
+def _restore_kernels():
+    previous = kernels.enabled()
+    yield
+    kernels.use(previous)
+
+
+def _fresh(mesh):
+    return RestMesh(uv=mesh.uv.copy(), triangles=mesh.triangles.copy(),
+                    levels=mesh.levels.copy(), width=mesh.width, height=mesh.height)
+
+
+def _same(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    assert a.dtype == b.dtype and a.shape == b.shape
+    assert a.tobytes() == b.tobytes()
+
+
+def _build(mesh, compiled):
+    kernels.use(compiled)
+    mesh = _fresh(mesh)
+    hinges = mesh.hinges()
+    elements = tk.precompute(mesh)
+    storage = linear.PatternStorage()
+    pattern = linear.SparsePattern(elements.vertex_count,
+                                   [elements.triangles, elements.hinge_vertices], storage)
+    return hinges, elements, pattern
+
+
+def _check(mesh):
+    (h0, e0, p0), (h1, e1, p1) = _build(mesh, False), _build(mesh, True)
+    for name in ("edge", "opposite", "triangles", "is_hypotenuse", "boundary_edges"):
+        _same(getattr(h0, name), getattr(h1, name))
+    for name in ("triangles", "area", "coef_u", "coef_v", "hinge_vertices", "hinge_weight",
+                 "hinge_triangles", "coef_u_cm", "coef_v_cm", "triangles_cm"):
+        _same(getattr(e0, name), getattr(e1, name))
+    assert e0.vertex_count == e1.vertex_count
+    for name in ("indices", "indptr", "diagonal_block", "_all_slots"):
+        _same(getattr(p0, name), getattr(p1, name))
+    assert p0.block_count == p1.block_count and p0.shape == p1.shape
+
+
+@pytest.mark.parametrize("blocks", [(1, 1), (2, 1), (1, 3), (4, 4)])
+@pytest.mark.parametrize("level", [0, 1, 2, 3, 4])
+def test_uniform_meshes(blocks, level):
+    _check(refine_uniform(base_mesh(float(blocks[0]), float(blocks[1]), *blocks), level))
+
+
+@pytest.mark.parametrize("level", [5, 6])
+def test_fine_uniform_meshes(level):
+    _check(refine_uniform(base_mesh(1.0, 1.0, 4, 4), level))
+
+
+def test_pattern_beyond_the_dense_key_table():
+    # n > 2048: the reference takes np.unique instead of its key table.
+    mesh = refine_uniform(base_mesh(1.0, 1.0, 4, 4), 7)
+    assert mesh.vertex_count ** 2 > linear._DENSE_KEYS
+    _check(mesh)
+
+
+@pytest.mark.parametrize("scene", ["hang_two_corners", "grasp_lift"])
+def test_graded_meshes_of_an_adaptive_run(scene):
+    sim = ClothSim(load_scene(scene, []))
+    meshes = [sim.mesh]
+    adopt = sim._adopt_hierarchy
+
+    def hook():
+        adopt()
+        meshes.append(sim.mesh)
+    sim._adopt_hierarchy = hook
+    for _ in range(40):
+        sim.step()
+    assert any(m.levels.min() != m.levels.max() for m in meshes)
+    for mesh in meshes[::3]:
+        _check(mesh)
+
+
+def test_pattern_of_other_element_kinds():
+    rng = np.random.default_rng(3)
+    kinds = [rng.integers(0, 9, (7, 2)), rng.integers(0, 9, (5, 3)), np.zeros((0, 4), np.int64)]
+    out = []
+    for compiled in (False, True):
+        kernels.use(compiled)
+        out.append(linear.SparsePattern(9, kinds))
+    for name in ("indices", "indptr", "diagonal_block", "_all_slots"):
+        _same(getattr(out[0], name), getattr(out[1], name))
+
+
+def test_errors_and_fallbacks_are_the_reference_ones():
+    kernels.use(True)
+    bad = np.array([[0, 1, 2], [0, 1, 2]])        # the same orientation twice
+    with pytest.raises(MeshError, match="orientation"):
+        tk.build_hinges(bad, 3)
+    with pytest.raises(MeshError, match="non-manifold"):
+        tk.build_hinges(np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4], [1, 0, 5]]), 6)
+    with pytest.raises(IndexError):                # an index outside [0, n): the reference's
+        linear.SparsePattern(3, [np.array([[0, 1, 5]])])
+    hinges = tk.build_hinges(np.array([[0, 1, 2]], dtype=np.int32), 3)   # other dtype
+    reference = mesh48.build_hinges(np.array([[0, 1, 2]]), 3)
+    _same(hinges.boundary_edges, reference.boundary_edges)
+
+
+def test_numpy_switch_uses_the_reference(monkeypatch):
+    kernels.use(False)
+    mesh = base_mesh(1.0, 1.0, 1, 1)
+    monkeypatch.setattr(tk, "_element_data", None)
+    monkeypatch.setattr(tk, "_hinges", None)
+    monkeypatch.setattr(tk, "_pattern", None)
+    elements = tk.precompute(mesh)
+    _same(elements.area, forces.precompute(_fresh(mesh)).area)
+    assert tk.sparse_pattern(4, [elements.triangles], np.empty(81, np.int64)) is None
