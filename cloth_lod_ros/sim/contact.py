@@ -23,7 +23,9 @@ that velocity.  A static obstacle has ``velocity None`` and its contacts
 ``velocity None``: the code then runs exactly as it did before obstacles could
 move.
 
-A scene without obstacles never calls into this module.
+A particle near two obstacles at once gets both (``ContactSet.second``; the
+solve is in :mod:`.contact_rows`).  A scene without obstacles never calls
+into this module.
 """
 
 from __future__ import annotations
