@@ -248,6 +248,9 @@ def test_every_solve_of_a_step_is_counted_and_timed(monkeypatch):
         stats = sim.step()
         assert stats.solves == len(calls)
         assert stats.solve_ms >= sum(calls) * 0.999
+        # A factorising backend, and no solve of an unchanged system here
+        # (that is the layer-reaction solve of self-collision).
+        assert stats.factorisations == stats.solves
         several += stats.solves > 1
     assert several > 0
 

@@ -487,23 +487,25 @@ def _second(obstacles: list[Obstacle], which: np.ndarray, x: np.ndarray,
     return out_which >= 0, best, out_normal, mu, out_which
 
 
-def _with_second(contacts: ContactSet, obstacles, x_rows, found, phi, normal, mu, which,
-                 distance, hold) -> ContactSet:
+def _with_second(contacts: ContactSet, found, normal, mu, distance, hold,
+                 velocity) -> ContactSet:
     """``contacts`` with the second obstacles :func:`_second` ``found``
-    (``(k,)`` bool) attached as :attr:`ContactSet.second`, at ``distance``
-    ``(k,)`` m and ``hold`` ``(k,)``; unchanged when none was found."""
-    if not found.any():
-        return contacts
-    k = len(contacts)
-    velocity = None
-    if any(o.moving for o in obstacles):
-        velocity = np.zeros((k, 3))
-        velocity[found] = _surface_velocity(obstacles, which[found], x_rows[found],
-                                            phi[found], normal[found])
-    contacts.second = ContactSet(contacts.indices, np.where(found[:, None], normal, 0.0),
-                                 np.where(found, distance, 0.0), np.where(found, mu, 0.0),
-                                 found & hold, velocity)
+    (``(k,)`` bool; ``normal`` ``(k, 3)``, ``mu`` ``(k,)``) attached as
+    :attr:`ContactSet.second`, at ``distance`` ``(k,)`` m with ``hold``
+    ``(k,)`` and surface ``velocity`` ``(k, 3)`` m/s or None; unchanged when
+    none was found."""
+    if found.any():
+        contacts.second = ContactSet(
+            contacts.indices, np.where(found[:, None], normal, 0.0),
+            np.where(found, distance, 0.0), np.where(found, mu, 0.0), found & hold,
+            None if velocity is None else np.where(found[:, None], velocity, 0.0))
     return contacts
+
+
+def _second_velocity(obstacles, found, which, x, phi, normal):
+    """``(k, 3)`` m/s: the surface velocity at the second obstacles' nearest
+    points (zero where none was found), or None when no obstacle moves."""
+    return _surface_velocity(obstacles, which, x, np.where(found, phi, 0.0), normal)
 
 
 def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
@@ -544,8 +546,9 @@ def find_contacts(obstacles: list[Obstacle], x: np.ndarray, thickness: float,
         found, phi, nrm, mu2, which2 = _second(
             obstacles, which[idx], x[idx], normal[idx], 2.0 * thickness,
             None if velocities is None else velocities[idx], h)
-        contacts = _with_second(contacts, obstacles, x[idx], found, phi, nrm, mu2, which2,
-                                phi - thickness, np.zeros(len(idx), bool))
+        contacts = _with_second(contacts, found, nrm, mu2, phi - thickness,
+                                np.zeros(len(idx), bool),
+                                _second_velocity(obstacles, found, which2, x[idx], phi, nrm))
     return contacts
 
 
@@ -584,14 +587,11 @@ def penetrations(obstacles: list[Obstacle], start: np.ndarray, end: np.ndarray,
         # it into the table's corner): that one constrains it too.
         found, phi, nrm, mu2, which2 = _second(obstacles, which[idx], end[idx], normal[idx],
                                                2.0 * thickness)
+        velocity2 = _second_velocity(obstacles, found, which2, end[idx], phi, nrm)
         surface2 = end[idx] - np.where(found, phi, 0.0)[:, None] * nrm
-        contacts = _with_second(contacts, obstacles, end[idx], found, phi, nrm, mu2, which2,
-                                np.zeros(len(idx)), np.zeros(len(idx), bool))
-        if contacts.second is not None:
-            if contacts.second.velocity is not None:
-                surface2 = surface2 - h * contacts.second.velocity
-            along2 = np.einsum("kd,kd->k", start[idx] - surface2, nrm)
-            second = contacts.second
-            second.distance = np.where(found, along2 - thickness, 0.0)
-            second.hold = found & (phi < (1.0 - tolerance) * thickness)
+        if velocity2 is not None:
+            surface2 = surface2 - h * velocity2
+        along2 = np.einsum("kd,kd->k", start[idx] - surface2, nrm)
+        contacts = _with_second(contacts, found, nrm, mu2, along2 - thickness,
+                                phi < (1.0 - tolerance) * thickness, velocity2)
     return contacts

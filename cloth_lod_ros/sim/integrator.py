@@ -40,7 +40,7 @@ from .forces import Elements
 from .contact_rows import TwoNormals
 from .layer_reactions import layer_reactions
 from .linear import Constraints, PatternStorage, SparsePattern, bsr_product
-from .solvers import make_solver
+from .solvers import factorisation_count, make_solver
 
 __all__ = ["ImplicitStageSolver", "SolveReport", "StageResult"]
 
@@ -50,6 +50,8 @@ class SolveReport:
     """What the solver reports alongside the new state (times in ms).
 
     ``iterations`` are linear-solver (CG) iterations, ``solves`` linear solves,
+    ``factorisations`` the numeric factorisations among them (direct backends;
+    a solve of an unchanged system only back-substitutes),
     ``newton_iterations`` Newton iterations (one linearisation each) over all
     stages; ``line_search_cuts`` how often a Newton step was shortened.
     """
@@ -65,6 +67,7 @@ class SolveReport:
     solves: int = 1
     newton_iterations: int = 1
     line_search_cuts: int = 0
+    factorisations: int = 0
 
     @classmethod
     def empty(cls) -> "SolveReport":
@@ -77,6 +80,7 @@ class SolveReport:
         self.iterations += other.iterations
         self.released += other.released
         self.solves += other.solves
+        self.factorisations += other.factorisations
         self.force_ms += other.force_ms
         self.assembly_ms += other.assembly_ms
         self.solve_ms += other.solve_ms
@@ -277,6 +281,7 @@ class ImplicitStageSolver:
         if self._pattern is None:
             self._new_pattern(elements)
         solves_before = self._solves
+        factorised_before = factorisation_count()
         held_idx, targets = held
         velocities = predictor.copy()
         # Held particles start on their end-of-stage velocity, so every Newton
@@ -357,6 +362,7 @@ class ImplicitStageSolver:
                 break
         self._warm[slot] = warm
         report.solves = self._solves - solves_before
+        report.factorisations = factorisation_count() - factorised_before
         report.contacts = len(contacts) if contacts is not None else 0
         report.released = released
         return StageResult(x_hat + gh * velocities, velocities, contacts, report, impulse)

@@ -44,7 +44,8 @@ from .linear import (Constraints, SolveResult, SparsePattern, block_diagonal_mat
                      relative_residual, solve_projected_direct)
 from .multigrid import VCycle, block_transfers, lattice_hierarchy
 
-__all__ = ["LinearSolver", "make_solver", "METHODS", "available_methods"]
+__all__ = ["LinearSolver", "make_solver", "METHODS", "available_methods",
+           "factorisation_count"]
 
 METHODS = ("auto", "pcg", "multigrid", "direct", "block_ldl", "cholmod", "superlu")
 #: ``auto`` factorises up to this many particles and uses multigrid above, on
@@ -285,6 +286,12 @@ class BlockLdl(LinearSolver):
         y = kernels.solve(perm, pointers, self._rows, self._factor, self._inverse_diagonal,
                           np.ascontiguousarray(b))
         return _factorised_result(matrix, rhs, constraints, z, y, self.tolerance)
+
+
+def factorisation_count() -> int:
+    """Numeric factorisations the direct backends have made in this process
+    (a solve that reused one only back-substituted: :class:`_FactoredSystem`)."""
+    return _FactoredSystem.factorisations
 
 
 class _FactoredSystem:

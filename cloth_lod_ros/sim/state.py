@@ -51,7 +51,9 @@ class StepStats:
     rejected attempts included).  ``newton_iterations`` counts linearisations
     (over stages and substeps), ``solves`` every linear solve of the step
     (Newton iterations, friction rounds, contact re-solves, rejected attempts),
-    all timed in ``solve_ms``; ``solver`` names the backend that ran
+    all timed in ``solve_ms``, ``factorisations`` the numeric factorisations
+    among them (a direct backend reuses its factorisation when only the
+    right-hand side changed; 0 for the iterative ones); ``solver`` names the backend that ran
     (:mod:`~cloth_lod_ros.sim.solvers`).
     ``air_power`` (W) is the power of the air on the cloth at the end of the
     step (face drag relative to the wind plus the isotropic
@@ -89,6 +91,7 @@ class StepStats:
     max_speed: float
     substeps: int = 1
     solves: int = 1
+    factorisations: int = 0
     solver: str = ""
     rejected_steps: int = 0
     smallest_step: float = 0.0

@@ -87,7 +87,10 @@ def _summary(sim: ClothSim, wall: float) -> str:
         f"  solver {sim.scene.solver.method}"
         + (f" (ran: {'+'.join(sorted({s.solver for s in st}))})"
            if sim.scene.solver.method == "auto" else "")
-        + f", {np.mean([s.solves for s in st]):.1f} solves per step: CG iterations mean "
+        + f", {np.mean([s.solves for s in st]):.1f} solves per step"
+        + (f" ({np.mean([s.factorisations for s in st]):.1f} factorisations)"
+           if any(s.factorisations for s in st) else "")
+        + ": CG iterations mean "
         f"{it.mean():.1f}, "
         f"max {it.max()}; worst residual {max(s.residual for s in st):.2e}; "
         f"{unconverged} unconverged step(s)",
