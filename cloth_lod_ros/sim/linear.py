@@ -22,6 +22,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import kernels as _kernels
+from . import projection_kernels as _projection
 from . import topology_kernels as _topology
 
 try:        # the compiled kernel behind scipy's CSR products (see CsrOperator)
@@ -414,9 +415,14 @@ def project_system(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
 
 
 def projected_data(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constraints,
-                   pattern: SparsePattern | None = None):
+                   pattern: SparsePattern | None = None, out: np.ndarray | None = None):
     """:func:`project_system` without building the BSR matrix: ``(Â's data
-    (blocks, 3, 3) on A's pattern, b̂ (n, 3), z (n, 3))``."""
+    (blocks, 3, 3) on A's pattern, b̂ (n, 3), z (n, 3))``.  Compiled where
+    numba is (:mod:`.projection_kernels`, writing ``Â`` into ``out`` if it has
+    the right shape); the numpy below is the reference."""
+    fast = _projection.projected_data(matrix, rhs, constraints, out)
+    if fast is not None:
+        return fast
     n = rhs.shape[0]
     z = constraints.start(np.zeros_like(rhs))
     data = matrix.data.copy()
@@ -459,9 +465,12 @@ def projected_data(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
 def projected_rhs(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constraints):
     """``(b̂, z)`` of :func:`projected_data` without ``Â`` (both ``(n, 3)``):
     for a solve that reuses a factorisation of the same ``Â``."""
-    z = constraints.start(np.zeros_like(rhs))
     if not len(constraints.indices):
-        return rhs, z
+        return rhs, np.zeros_like(rhs)
+    fast = _projection.projected_rhs(matrix, rhs, constraints)
+    if fast is not None:
+        return fast
+    z = constraints.start(np.zeros_like(rhs))
     return constraints.filter(rhs - bsr_product(matrix, z)), z
 
 

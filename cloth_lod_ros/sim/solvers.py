@@ -42,6 +42,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from .linear import (Constraints, SolveResult, SparsePattern, block_diagonal_matrix,
                      filtered_pcg, project_system, projected_data, projected_rhs,
                      relative_residual, solve_projected_direct)
+from . import projection_kernels as _projection
 from .multigrid import VCycle, block_transfers, lattice_hierarchy
 
 __all__ = ["LinearSolver", "make_solver", "METHODS", "available_methods",
@@ -264,6 +265,7 @@ class BlockLdl(LinearSolver):
         self._rows = np.empty(pointers[-1], dtype=np.int64)
         self._factor = np.empty((pointers[-1], 3, 3))
         self._inverse_diagonal = np.empty((n, 3, 3))
+        self._projected = np.empty_like(matrix.data)        # Â's blocks, every solve
 
     def solve(self, matrix, rhs, constraints, guess):
         kernels = _block_ldl_module()
@@ -271,9 +273,10 @@ class BlockLdl(LinearSolver):
             b, z = projected_rhs(matrix, rhs, constraints)
             perm, pointers = self._symbolic[2], self._symbolic[5]
         else:
-            data, b, z = projected_data(matrix, rhs, constraints, self.pattern)
             if self._symbolic is None:
                 self._analyse(matrix)                       # Â has A's pattern
+            data, b, z = projected_data(matrix, rhs, constraints, self.pattern,
+                                        out=self._projected)
             indptr, indices, perm, pinv, parent, pointers = self._symbolic
             self._factored.forget()
             failed = kernels.numeric(indptr, indices, np.ascontiguousarray(data), perm, pinv,
@@ -328,8 +331,12 @@ def _factorised_result(matrix, rhs, constraints, z, y, tolerance) -> SolveResult
     """``Δv = z + S y`` from a factorisation's solution ``y`` ``(n, 3)`` of the
     projected system, with its residual (converged: within ``tolerance``, or
     1e-8 for a tolerance below what round-off allows)."""
-    dv = z + constraints.filter(y)
-    rel = relative_residual(matrix, rhs, constraints, dv)
+    fast = _projection.solution(matrix, rhs, constraints, z, y)
+    if fast is not None:
+        dv, rel = fast
+    else:
+        dv = z + constraints.filter(y)
+        rel = relative_residual(matrix, rhs, constraints, dv)
     return SolveResult(dv=dv, iterations=0, residual=rel,
                        converged=bool(np.isfinite(rel) and rel <= max(tolerance, 1e-8)))
 
