@@ -320,8 +320,9 @@ def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
         projectors = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         projectors[constraints.indices] = constraints.projectors
     # CSR products are ~1.5x faster than BSR here, and CsrOperator skips scipy's dispatch.
-    if isinstance(filtered_matrix, CsrOperator):
-        filtered = filtered_matrix
+    if isinstance(filtered_matrix, CsrOperator) or (
+            filtered_matrix is not None and not sp.issparse(filtered_matrix)):
+        filtered = filtered_matrix          # an operator already (a compiled block product)
     elif filtered_matrix is not None:
         filtered = CsrOperator(filtered_matrix)
     elif projectors is not None:

@@ -42,6 +42,8 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from .linear import (Constraints, SolveResult, SparsePattern, block_diagonal_matrix,
                      filtered_pcg, project_system, projected_data, projected_rhs,
                      relative_residual, solve_projected_direct)
+from . import kernels as _kernels
+from . import multigrid_kernels as _mg_kernels
 from . import projection_kernels as _projection
 from .multigrid import VCycle, block_transfers, lattice_hierarchy
 
@@ -419,29 +421,41 @@ class Multigrid(LinearSolver):
 
     def reset_topology(self, pattern, uv, graded=False):
         super().reset_topology(pattern, uv)
-        self._prolongations = None
+        self._prolongations = self._transfers = None     # scalar P_k; P_k ⊗ I₃ (numpy path)
         self._cycle = None
 
     def solve(self, matrix, rhs, constraints, guess):
         if self._prolongations is None:
             width, height, block = self.geometry
-            self._prolongations = block_transfers(
-                lattice_hierarchy(self.uv, width, height, block))
+            self._prolongations = lattice_hierarchy(self.uv, width, height, block)
         projected, _, _ = project_system(matrix, rhs, constraints, self.pattern)
-        fine = projected.tocsr()
-        inverse_diagonal = _inverse_blocks(self.pattern.diagonal_blocks(projected))
+        inverse_blocks = np.linalg.inv(self.pattern.diagonal_blocks(projected))
+        compiled = _kernels.enabled()
+        if compiled:
+            # The same cycle on 3 × 3 blocks (multigrid_kernels): no CSR copies.
+            fine = _mg_kernels.block_arrays(projected)
+            operator, smoother = _mg_kernels.BlockOperator(fine), inverse_blocks
+        else:
+            fine = operator = projected.tocsr()
+            smoother = block_diagonal_matrix(inverse_blocks)
         if not self._prolongations:
-            cycle = inverse_diagonal.__matmul__          # too small to coarsen
-        elif self._cycle is None or self._stale():
-            cycle = self._cycle = VCycle(fine, inverse_diagonal, self._prolongations)
+            cycle = block_diagonal_matrix(inverse_blocks).__matmul__  # too small to coarsen
+        elif self._cycle is None or self._stale() or self._compiled != compiled:
+            if compiled:
+                cycle = _mg_kernels.BlockVCycle(fine, smoother, self._prolongations)
+            else:
+                if self._transfers is None:
+                    self._transfers = block_transfers(self._prolongations)
+                cycle = VCycle(fine, smoother, self._transfers)
+            self._cycle, self._compiled = cycle, compiled
             self._uses, self._baseline = 0, None
         else:
             cycle = self._cycle
-            cycle.update_fine(fine, inverse_diagonal)
+            cycle.update_fine(fine, smoother)
         result = filtered_pcg(matrix, rhs, constraints, self.pattern.diagonal_blocks(matrix),
                               guess=guess, tolerance=self.tolerance,
                               max_iterations=self.max_iterations, preconditioner=cycle,
-                              filtered_matrix=fine)
+                              filtered_matrix=operator)
         if not result.converged:
             # Never worse than the reference: finish with block-Jacobi PCG from
             # where the multigrid iteration stopped, and rebuild next time.
