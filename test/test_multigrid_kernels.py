@@ -95,3 +95,17 @@ def test_multigrid_steps_agree_compiled_and_reference():
         assert all(s.solver == "multigrid" for s in stats)
         positions.append(sim.positions.copy())
     assert np.abs(positions[0] - positions[1]).max() < 1e-7
+
+
+def test_inverse_blocks_match_numpy_and_refuse_singular_blocks():
+    rng = np.random.default_rng(3)
+    blocks = rng.standard_normal((50, 3, 3))
+    np.testing.assert_allclose(mk.inverse_blocks(blocks), np.linalg.inv(blocks), rtol=1e-9,
+                               atol=1e-12)
+    blocks[7] = [[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 1.0, 0.0]]
+    with pytest.raises(np.linalg.LinAlgError, match="row 7"):
+        mk.inverse_blocks(blocks)
+    blocks[7] = np.eye(3)
+    blocks[9, 1, 1] = np.nan
+    with pytest.raises(np.linalg.LinAlgError, match="row 9"):
+        mk.inverse_blocks(blocks)

@@ -316,7 +316,7 @@ def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
     """
     n = rhs.shape[0]
     projectors = None
-    if len(constraints.indices):
+    if len(constraints.indices) and (filtered_matrix is None or preconditioner is None):
         projectors = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         projectors[constraints.indices] = constraints.projectors
     # CSR products are ~1.5x faster than BSR here, and CsrOperator skips scipy's dispatch.
@@ -334,19 +334,20 @@ def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
         if projectors is not None:
             inverse_blocks = projectors @ inverse_blocks @ projectors
         precond = CsrOperator(block_diagonal_matrix(inverse_blocks)).__matmul__
-    elif projectors is None:
+    elif not len(constraints.indices):
         precond = preconditioner
     else:
-        projection = CsrOperator(block_diagonal_matrix(projectors))
-
+        # S M⁻¹ S with S applied to the constrained particles only (a copy
+        # elsewhere): most particles are free.
         def precond(r):
-            return projection @ preconditioner(projection @ r)
+            filtered_r = constraints.filter(r.reshape(n, 3)).ravel()
+            return constraints.filter(preconditioner(filtered_r).reshape(n, 3)).ravel()
 
     dv = constraints.start(np.zeros_like(rhs) if guess is None else guess).ravel()
     filtered_rhs = constraints.filter(rhs).ravel()
     rhs_norm = float(np.linalg.norm(filtered_rhs))
     delta0 = float(filtered_rhs @ precond(filtered_rhs))
-    residual = constraints.filter(rhs - (matrix @ dv).reshape(n, 3)).ravel()
+    residual = constraints.filter(rhs - bsr_product(matrix, dv.reshape(n, 3))).ravel()
     direction = precond(residual)
     delta = float(residual @ direction)
     threshold = tolerance**2 * delta0

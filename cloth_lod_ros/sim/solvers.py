@@ -429,8 +429,10 @@ class Multigrid(LinearSolver):
             width, height, block = self.geometry
             self._prolongations = lattice_hierarchy(self.uv, width, height, block)
         projected, _, _ = project_system(matrix, rhs, constraints, self.pattern)
-        inverse_blocks = np.linalg.inv(self.pattern.diagonal_blocks(projected))
         compiled = _kernels.enabled()
+        diagonal = self.pattern.diagonal_blocks(projected)
+        inverse_blocks = _mg_kernels.inverse_blocks(diagonal) if compiled \
+            else np.linalg.inv(diagonal)
         if compiled:
             # The same cycle on 3 × 3 blocks (multigrid_kernels): no CSR copies.
             fine = _mg_kernels.block_arrays(projected)
