@@ -22,6 +22,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import kernels as _kernels
+from . import projection_kernels as _projection
 from . import topology_kernels as _topology
 
 try:        # the compiled kernel behind scipy's CSR products (see CsrOperator)
@@ -315,12 +316,13 @@ def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
     """
     n = rhs.shape[0]
     projectors = None
-    if len(constraints.indices):
+    if len(constraints.indices) and (filtered_matrix is None or preconditioner is None):
         projectors = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         projectors[constraints.indices] = constraints.projectors
     # CSR products are ~1.5x faster than BSR here, and CsrOperator skips scipy's dispatch.
-    if isinstance(filtered_matrix, CsrOperator):
-        filtered = filtered_matrix
+    if isinstance(filtered_matrix, CsrOperator) or (
+            filtered_matrix is not None and not sp.issparse(filtered_matrix)):
+        filtered = filtered_matrix          # an operator already (a compiled block product)
     elif filtered_matrix is not None:
         filtered = CsrOperator(filtered_matrix)
     elif projectors is not None:
@@ -332,19 +334,20 @@ def filtered_pcg(matrix, rhs: np.ndarray, constraints: Constraints,
         if projectors is not None:
             inverse_blocks = projectors @ inverse_blocks @ projectors
         precond = CsrOperator(block_diagonal_matrix(inverse_blocks)).__matmul__
-    elif projectors is None:
+    elif not len(constraints.indices):
         precond = preconditioner
     else:
-        projection = CsrOperator(block_diagonal_matrix(projectors))
-
+        # S M⁻¹ S with S applied to the constrained particles only (a copy
+        # elsewhere): most particles are free.
         def precond(r):
-            return projection @ preconditioner(projection @ r)
+            filtered_r = constraints.filter(r.reshape(n, 3)).ravel()
+            return constraints.filter(preconditioner(filtered_r).reshape(n, 3)).ravel()
 
     dv = constraints.start(np.zeros_like(rhs) if guess is None else guess).ravel()
     filtered_rhs = constraints.filter(rhs).ravel()
     rhs_norm = float(np.linalg.norm(filtered_rhs))
     delta0 = float(filtered_rhs @ precond(filtered_rhs))
-    residual = constraints.filter(rhs - (matrix @ dv).reshape(n, 3)).ravel()
+    residual = constraints.filter(rhs - bsr_product(matrix, dv.reshape(n, 3))).ravel()
     direction = precond(residual)
     delta = float(residual @ direction)
     threshold = tolerance**2 * delta0
@@ -414,9 +417,14 @@ def project_system(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
 
 
 def projected_data(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constraints,
-                   pattern: SparsePattern | None = None):
+                   pattern: SparsePattern | None = None, out: np.ndarray | None = None):
     """:func:`project_system` without building the BSR matrix: ``(Â's data
-    (blocks, 3, 3) on A's pattern, b̂ (n, 3), z (n, 3))``."""
+    (blocks, 3, 3) on A's pattern, b̂ (n, 3), z (n, 3))``.  Compiled where
+    numba is (:mod:`.projection_kernels`, writing ``Â`` into ``out`` if it has
+    the right shape); the numpy below is the reference."""
+    fast = _projection.projected_data(matrix, rhs, constraints, out)
+    if fast is not None:
+        return fast
     n = rhs.shape[0]
     z = constraints.start(np.zeros_like(rhs))
     data = matrix.data.copy()
@@ -459,9 +467,12 @@ def projected_data(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
 def projected_rhs(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constraints):
     """``(b̂, z)`` of :func:`projected_data` without ``Â`` (both ``(n, 3)``):
     for a solve that reuses a factorisation of the same ``Â``."""
-    z = constraints.start(np.zeros_like(rhs))
     if not len(constraints.indices):
-        return rhs, z
+        return rhs, np.zeros_like(rhs)
+    fast = _projection.projected_rhs(matrix, rhs, constraints)
+    if fast is not None:
+        return fast
+    z = constraints.start(np.zeros_like(rhs))
     return constraints.filter(rhs - bsr_product(matrix, z)), z
 
 

@@ -42,6 +42,9 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from .linear import (Constraints, SolveResult, SparsePattern, block_diagonal_matrix,
                      filtered_pcg, project_system, projected_data, projected_rhs,
                      relative_residual, solve_projected_direct)
+from . import kernels as _kernels
+from . import multigrid_kernels as _mg_kernels
+from . import projection_kernels as _projection
 from .multigrid import VCycle, block_transfers, lattice_hierarchy
 
 __all__ = ["LinearSolver", "make_solver", "METHODS", "available_methods",
@@ -264,6 +267,7 @@ class BlockLdl(LinearSolver):
         self._rows = np.empty(pointers[-1], dtype=np.int64)
         self._factor = np.empty((pointers[-1], 3, 3))
         self._inverse_diagonal = np.empty((n, 3, 3))
+        self._projected = np.empty_like(matrix.data)        # Â's blocks, every solve
 
     def solve(self, matrix, rhs, constraints, guess):
         kernels = _block_ldl_module()
@@ -271,9 +275,10 @@ class BlockLdl(LinearSolver):
             b, z = projected_rhs(matrix, rhs, constraints)
             perm, pointers = self._symbolic[2], self._symbolic[5]
         else:
-            data, b, z = projected_data(matrix, rhs, constraints, self.pattern)
             if self._symbolic is None:
                 self._analyse(matrix)                       # Â has A's pattern
+            data, b, z = projected_data(matrix, rhs, constraints, self.pattern,
+                                        out=self._projected)
             indptr, indices, perm, pinv, parent, pointers = self._symbolic
             self._factored.forget()
             failed = kernels.numeric(indptr, indices, np.ascontiguousarray(data), perm, pinv,
@@ -328,8 +333,12 @@ def _factorised_result(matrix, rhs, constraints, z, y, tolerance) -> SolveResult
     """``Δv = z + S y`` from a factorisation's solution ``y`` ``(n, 3)`` of the
     projected system, with its residual (converged: within ``tolerance``, or
     1e-8 for a tolerance below what round-off allows)."""
-    dv = z + constraints.filter(y)
-    rel = relative_residual(matrix, rhs, constraints, dv)
+    fast = _projection.solution(matrix, rhs, constraints, z, y)
+    if fast is not None:
+        dv, rel = fast
+    else:
+        dv = z + constraints.filter(y)
+        rel = relative_residual(matrix, rhs, constraints, dv)
     return SolveResult(dv=dv, iterations=0, residual=rel,
                        converged=bool(np.isfinite(rel) and rel <= max(tolerance, 1e-8)))
 
@@ -412,29 +421,43 @@ class Multigrid(LinearSolver):
 
     def reset_topology(self, pattern, uv, graded=False):
         super().reset_topology(pattern, uv)
-        self._prolongations = None
+        self._prolongations = self._transfers = None     # scalar P_k; P_k ⊗ I₃ (numpy path)
         self._cycle = None
 
     def solve(self, matrix, rhs, constraints, guess):
         if self._prolongations is None:
             width, height, block = self.geometry
-            self._prolongations = block_transfers(
-                lattice_hierarchy(self.uv, width, height, block))
+            self._prolongations = lattice_hierarchy(self.uv, width, height, block)
         projected, _, _ = project_system(matrix, rhs, constraints, self.pattern)
-        fine = projected.tocsr()
-        inverse_diagonal = _inverse_blocks(self.pattern.diagonal_blocks(projected))
+        compiled = _kernels.enabled()
+        diagonal = self.pattern.diagonal_blocks(projected)
+        inverse_blocks = _mg_kernels.inverse_blocks(diagonal) if compiled \
+            else np.linalg.inv(diagonal)
+        if compiled:
+            # The same cycle on 3 × 3 blocks (multigrid_kernels): no CSR copies.
+            fine = _mg_kernels.block_arrays(projected)
+            operator, smoother = _mg_kernels.BlockOperator(fine), inverse_blocks
+        else:
+            fine = operator = projected.tocsr()
+            smoother = block_diagonal_matrix(inverse_blocks)
         if not self._prolongations:
-            cycle = inverse_diagonal.__matmul__          # too small to coarsen
-        elif self._cycle is None or self._stale():
-            cycle = self._cycle = VCycle(fine, inverse_diagonal, self._prolongations)
+            cycle = block_diagonal_matrix(inverse_blocks).__matmul__  # too small to coarsen
+        elif self._cycle is None or self._stale() or self._compiled != compiled:
+            if compiled:
+                cycle = _mg_kernels.BlockVCycle(fine, smoother, self._prolongations)
+            else:
+                if self._transfers is None:
+                    self._transfers = block_transfers(self._prolongations)
+                cycle = VCycle(fine, smoother, self._transfers)
+            self._cycle, self._compiled = cycle, compiled
             self._uses, self._baseline = 0, None
         else:
             cycle = self._cycle
-            cycle.update_fine(fine, inverse_diagonal)
+            cycle.update_fine(fine, smoother)
         result = filtered_pcg(matrix, rhs, constraints, self.pattern.diagonal_blocks(matrix),
                               guess=guess, tolerance=self.tolerance,
                               max_iterations=self.max_iterations, preconditioner=cycle,
-                              filtered_matrix=fine)
+                              filtered_matrix=operator)
         if not result.converged:
             # Never worse than the reference: finish with block-Jacobi PCG from
             # where the multigrid iteration stopped, and rebuild next time.
