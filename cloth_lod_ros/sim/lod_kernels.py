@@ -243,14 +243,17 @@ def _find(ids, value):
 @_jit
 def _membrane(cu0, cu1, cu2, cv0, cv1, cv2, area, x, i0, i1, i2, ks, ksh):
     """forces.membrane_energies of one triangle, J (its operations, in its order)."""
-    wu = np.empty(3)
-    wv = np.empty(3)
-    for d in range(3):               # einsum 'tk,tkd->td': k = 0, 1, 2 added into 0
-        wu[d] = ((0.0 + cu0 * x[i0, d]) + cu1 * x[i1, d]) + cu2 * x[i2, d]
-        wv[d] = ((0.0 + cv0 * x[i0, d]) + cv1 * x[i1, d]) + cv2 * x[i2, d]
-    len_u = np.sqrt(_dot3(wu[0], wu[1], wu[2], wu[0], wu[1], wu[2]))
-    len_v = np.sqrt(_dot3(wv[0], wv[1], wv[2], wv[0], wv[1], wv[2]))
-    shear = _dot3(wu[0], wu[1], wu[2], wv[0], wv[1], wv[2])
+    # einsum 'tk,tkd->td': corners k = 0, 1, 2 added into 0, per component
+    # (scalars: an array per call would be a heap allocation per triangle).
+    wu0 = ((0.0 + cu0 * x[i0, 0]) + cu1 * x[i1, 0]) + cu2 * x[i2, 0]
+    wu1 = ((0.0 + cu0 * x[i0, 1]) + cu1 * x[i1, 1]) + cu2 * x[i2, 1]
+    wu2 = ((0.0 + cu0 * x[i0, 2]) + cu1 * x[i1, 2]) + cu2 * x[i2, 2]
+    wv0 = ((0.0 + cv0 * x[i0, 0]) + cv1 * x[i1, 0]) + cv2 * x[i2, 0]
+    wv1 = ((0.0 + cv0 * x[i0, 1]) + cv1 * x[i1, 1]) + cv2 * x[i2, 1]
+    wv2 = ((0.0 + cv0 * x[i0, 2]) + cv1 * x[i1, 2]) + cv2 * x[i2, 2]
+    len_u = np.sqrt(_dot3(wu0, wu1, wu2, wu0, wu1, wu2))
+    len_v = np.sqrt(_dot3(wv0, wv1, wv2, wv0, wv1, wv2))
+    shear = _dot3(wu0, wu1, wu2, wv0, wv1, wv2)
     su, sv = len_u - 1.0, len_v - 1.0
     return 0.5 * area * (ks * (su * su + sv * sv) + ksh * (shear * shear))
 
@@ -282,8 +285,7 @@ def _merge_energies(vertices, vertex_ids, triangle_ids, vertex_edge, vertex_pare
     ends = np.empty((k_count, 2), dtype=np.int64)
     corners = np.empty((k_count, 2, 3), dtype=np.int64)   # compact parent corners
     parent_area = np.zeros((k_count, 2))
-    cu = np.empty(3)
-    cv = np.empty(3)
+    change = np.empty(3)             # the ends' velocity change of one merge, m/s
     owner = np.full(n, -1, dtype=np.int64)
     for i in range(k_count):
         m = vertices[i]
@@ -382,15 +384,15 @@ def _merge_energies(vertices, vertex_ids, triangle_ids, vertex_edge, vertex_pare
         m_mid, m_l, m_r = masses[mi], masses[left], masses[right]
         mass_ends = m_l + m_r + m_mid
         for d in range(3):
-            cv[d] = m_mid * (v[mi, d] - 0.5 * (v[left, d] + v[right, d])) / mass_ends
+            change[d] = m_mid * (v[mi, d] - 0.5 * (v[left, d] + v[right, d])) / mass_ends
             offset[i, d] = x[mi, d] - 0.5 * (x[left, d] + x[right, d])
         sq_l = _dot3(v[left, 0], v[left, 1], v[left, 2], v[left, 0], v[left, 1], v[left, 2])
         sq_r = _dot3(v[right, 0], v[right, 1], v[right, 2],
                      v[right, 0], v[right, 1], v[right, 2])
         sq_m = _dot3(v[mi, 0], v[mi, 1], v[mi, 2], v[mi, 0], v[mi, 1], v[mi, 2])
         before_k = m_l * sq_l + m_r * sq_r + m_mid * sq_m
-        l0, l1, l2 = v[left, 0] + cv[0], v[left, 1] + cv[1], v[left, 2] + cv[2]
-        r0, r1, r2 = v[right, 0] + cv[0], v[right, 1] + cv[1], v[right, 2] + cv[2]
+        l0, l1, l2 = v[left, 0] + change[0], v[left, 1] + change[1], v[left, 2] + change[2]
+        r0, r1, r2 = v[right, 0] + change[0], v[right, 1] + change[1], v[right, 2] + change[2]
         after_k = ((m_l + 0.5 * m_mid) * _dot3(l0, l1, l2, l0, l1, l2)
                    + (m_r + 0.5 * m_mid) * _dot3(r0, r1, r2, r0, r1, r2))
         kinetic[i] = 0.5 * (after_k - before_k)
