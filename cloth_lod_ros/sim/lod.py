@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import lod_kernels
 from .forces import Elements
 from .kernels import hinge_angles       # compiled when numba is there
 from .hierarchy import Hierarchy48, Merge
@@ -81,10 +82,25 @@ def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
     ``evaluation`` of the same state (:func:`cloth_lod_ros.sim.forces.evaluate`),
     its hinge angles and gradients are reused instead of recomputed.
     """
+    return _criterion(elements, bend_stiffness, x, v, evaluation)[0]
+
+
+def _criterion(elements: Elements, bend_stiffness: float, x: np.ndarray, v: np.ndarray,
+               evaluation=None, lookahead: float = 0.0) -> tuple[HingeMeasures, np.ndarray]:
+    """:func:`hinge_measures` and the deviation refined on, ``(h,)`` m: the larger
+    of d now and at ``θ + lookahead · dθ/dt`` (lookahead in s; 0: d itself).
+
+    One compiled pass (:mod:`cloth_lod_ros.sim.lod_kernels`, bitwise the same
+    numbers) when the kernels are on; this numpy code is the reference.
+    """
     hv = elements.hinge_vertices
     if len(hv) == 0:
         empty = np.zeros(0)
-        return HingeMeasures(empty, empty, empty, empty, empty)
+        return HingeMeasures(empty, empty, empty, empty, empty), empty
+    compiled = lod_kernels.criterion(elements, bend_stiffness, x, v, evaluation, lookahead)
+    if compiled is not None:
+        deviation, refine_deviation, rate, force, height, theta = compiled
+        return HingeMeasures(deviation, rate, force, theta, height), refine_deviation
     if evaluation is not None:
         theta, grad = evaluation.hinge_angle, evaluation.hinge_gradient
     else:
@@ -100,7 +116,12 @@ def hinge_measures(elements: Elements, bend_stiffness: float, x: np.ndarray,
     largest = np.maximum(np.maximum(grad_norm[:, 0], grad_norm[:, 1]),
                          np.maximum(grad_norm[:, 2], grad_norm[:, 3]))
     force = bend_stiffness * elements.hinge_weight * np.abs(theta) * largest
-    return HingeMeasures(curvature_estimate(theta, height), rate, force, theta, height)
+    deviation = curvature_estimate(theta, height)
+    measures = HingeMeasures(deviation, rate, force, theta, height)
+    if lookahead > 0.0:
+        ahead = np.clip(theta + lookahead * rate, -np.pi, np.pi)
+        deviation = np.maximum(deviation, curvature_estimate(ahead, height))
+    return measures, deviation
 
 
 @dataclass
@@ -175,46 +196,55 @@ class LodPolicy:
                 triangles with such a corner are refined to ``layered_level``.
         """
         cfg = self.config
-        measures = hinge_measures(elements, self.material.bend_stiffness, x, v, evaluation)
+        measures, deviation = _criterion(elements, self.material.bend_stiffness, x, v,
+                                         evaluation, lookahead)
         hinge_tris = elements.hinge_triangles
-        deviation = measures.deviation
-        if lookahead > 0.0 and len(deviation):
-            ahead = np.clip(measures.angle + lookahead * measures.rate, -np.pi, np.pi)
-            deviation = np.maximum(deviation, curvature_estimate(ahead, measures.height))
         # Refine: both triangles of each over-curved hinge, most curved first.
-        over = np.flatnonzero(deviation > cfg.refine_threshold)
-        order = over[np.argsort(-deviation[over], kind="stable")]
-        refine = []
         detail = self._detail_triangles(elements, hierarchy, triangle_ids, detail_points,
                                         in_contact)
         if layered is not None and layered_level > 0 and layered.any():
             near = layered[elements.triangles].any(axis=1)
             low = hierarchy.level[triangle_ids] < layered_level
             detail = np.union1d(detail, triangle_ids[near & low])
-        if len(order) or len(detail):
-            candidates = np.concatenate([triangle_ids[hinge_tris[order].ravel()], detail])
-            levels = hierarchy.level[candidates]
-            candidates = candidates[levels < hierarchy.max_level]
-            _, first = np.unique(candidates, return_index=True)
-            refine = candidates[np.sort(first)].tolist()
+        refine = lod_kernels.refine_order(deviation, cfg.refine_threshold, hinge_tris,
+                                          triangle_ids, hierarchy.level, hierarchy.max_level,
+                                          detail)
+        if refine is None:                      # the reference (one compiled pass above)
+            refine = []
+            over = np.flatnonzero(deviation > cfg.refine_threshold)
+            order = over[np.argsort(-deviation[over], kind="stable")]
+            if len(order) or len(detail):
+                candidates = np.concatenate([triangle_ids[hinge_tris[order].ravel()], detail])
+                levels = hierarchy.level[candidates]
+                candidates = candidates[levels < hierarchy.max_level]
+                _, first = np.unique(candidates, return_index=True)
+                refine = candidates[np.sort(first)].tolist()
 
         # Simplify: split particles all of whose hinges are flat and settled.
         merge, energy, kinetic, bound = [], np.zeros(0), np.zeros(0), np.zeros(0)
-        vertices, kids = hierarchy.split_vertices() if simplify else (np.zeros(0, int), None)
+        vertices, kids = np.zeros(0, int), None
+        if simplify:        # Hierarchy48.split_vertices, or its compiled twin
+            found = lod_kernels.split_candidates(hierarchy)
+            vertices, kids = hierarchy.split_vertices() if found is None else found
         if len(vertices):
-            unsettled = ((measures.deviation >= cfg.coarsen_threshold)
-                         | (np.abs(measures.rate) >= cfg.max_hinge_rate)
-                         | (measures.bend_force >= cfg.max_bend_force))
-            blocked = np.zeros(len(x), dtype=bool)
-            blocked[elements.hinge_vertices[unsettled].ravel()] = True
-            # Youngest child (padding -1 never young), by column maxima (exact).
-            births = np.where(kids >= 0, hierarchy.birth[np.maximum(kids, 0)], -np.inf)
-            young = (np.maximum(np.maximum(births[:, 0], births[:, 1]),
-                                np.maximum(births[:, 2], births[:, 3]))
-                     > time - cfg.min_lifetime)
-            is_held = np.zeros(hierarchy.vertex_end, dtype=bool)   # np.isin by a pool mask
-            is_held[np.asarray(held, dtype=np.int64)] = True
-            ok = ~(blocked[np.searchsorted(vertex_ids, vertices)] | young | is_held[vertices])
+            ok = lod_kernels.mergeable(elements.hinge_vertices, measures, cfg, vertex_ids,
+                                       vertices, kids, hierarchy.birth,
+                                       time - cfg.min_lifetime, held, hierarchy.vertex_end)
+            if ok is None:                       # the reference (one compiled pass above)
+                unsettled = ((measures.deviation >= cfg.coarsen_threshold)
+                             | (np.abs(measures.rate) >= cfg.max_hinge_rate)
+                             | (measures.bend_force >= cfg.max_bend_force))
+                blocked = np.zeros(len(x), dtype=bool)
+                blocked[elements.hinge_vertices[unsettled].ravel()] = True
+                # Youngest child (padding -1 never young), by column maxima (exact).
+                births = np.where(kids >= 0, hierarchy.birth[np.maximum(kids, 0)], -np.inf)
+                young = (np.maximum(np.maximum(births[:, 0], births[:, 1]),
+                                    np.maximum(births[:, 2], births[:, 3]))
+                         > time - cfg.min_lifetime)
+                is_held = np.zeros(hierarchy.vertex_end, dtype=bool)   # np.isin by a pool mask
+                is_held[np.asarray(held, dtype=np.int64)] = True
+                ok = ~(blocked[np.searchsorted(vertex_ids, vertices)] | young
+                       | is_held[vertices])
             if cfg.detail_level > 0 and detail_points is not None and len(detail_points):
                 # Keep grasp neighbourhoods at detail_level: a merge there would
                 # leave parents one level above their children's.

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import lod_kernels
 from .forces import Elements, hinge_weights, membrane_energies, triangle_maps
 from .kernels import hinge_angles       # compiled when numba is there
 from .hierarchy import Hierarchy48, merge_velocity_change
@@ -88,6 +89,11 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
     k = len(vertices)
     if k == 0:
         return MergeEnergy(np.zeros(0), np.zeros(0), np.zeros(0))
+    compiled = lod_kernels.merge_energies(hierarchy, elements, vertex_ids, triangle_ids,
+                                          vertices, x, v, masses, material, gravity,
+                                          hinge_angle)
+    if compiled is not None:        # one compiled pass, bitwise this reference's numbers
+        return MergeEnergy(*compiled)
     h = hierarchy
     mid = np.searchsorted(vertex_ids, vertices)                      # compact m
     ends = np.searchsorted(vertex_ids, h.vertex_edge[vertices])      # (k, 2) l, r
