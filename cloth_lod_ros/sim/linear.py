@@ -56,19 +56,28 @@ class SparsePattern:
         self.vertex_count = n = int(vertex_count)
         element_vertices = [np.asarray(v, dtype=np.int64) for v in element_vertices]
         self.shape = (3 * n, 3 * n)
-        # Its storage is best reused (PatternStorage).
-        size = 9 * sum(v.size * v.shape[1] for v in element_vertices)
-        self._all_slots = (storage.take_slots(size) if storage is not None
-                           else np.empty(size, dtype=np.int64))
         self._element_shapes = [v.shape for v in element_vertices]
         self._block_slots = None
-        # Compiled when numba is there: the same arrays, bitwise, without the
-        # key tables and dozens of small numpy passes (topology_kernels.py).
-        built = _topology.sparse_pattern(n, element_vertices, self._all_slots, storage)
+        self._entry_slots = None
+        self._retired = False
+        pairs = sum(v.shape[0] * v.shape[1] ** 2 for v in element_vertices)
+        # Compiled when numba is there: one slot per vertex pair (the block
+        # slots the compiled assembly adds through), bitwise the reference's,
+        # without the key tables and dozens of small numpy passes
+        # (topology_kernels.py); the 9x larger entry slots only if asked for.
+        # Its storage is best reused (PatternStorage).
+        self._owned = (storage.take_slots(pairs) if storage is not None
+                       else np.empty(pairs, dtype=np.int64))
+        built = _topology.sparse_pattern(n, element_vertices, self._owned, storage)
         if built is not None:
             self.indices, self.indptr, self.diagonal_block = built
             self.block_count = len(self.indices)
             return
+        if storage is not None:
+            storage.spare_slots = self._owned if self._owned.base is None else self._owned.base
+        size = 9 * pairs
+        self._owned = self._entry_slots = (storage.take_slots(size) if storage is not None
+                                           else np.empty(size, dtype=np.int64))
         keys = []
         for v in element_vertices:
             # Key i·n + j of every vertex pair (i, j) of every element, in
@@ -94,7 +103,7 @@ class SparsePattern:
             e, k = v.shape
             i, a, j, b = np.indices((k, 3, k, 3)).reshape(4, -1)
             block = 9 * block_of[offset:offset + e * k * k].reshape(e, k * k)
-            out = self._all_slots[written:written + 9 * e * k * k].reshape(e, 9 * k * k)
+            out = self._entry_slots[written:written + 9 * e * k * k].reshape(e, 9 * k * k)
             np.take(block, i * k + j, axis=1, out=out, mode="clip")   # indices < k²
             out += 3 * a + b
             offset += e * k * k
@@ -112,8 +121,7 @@ class SparsePattern:
             diagonal: ``(n,)`` scalar added as ``diagonal[i] * I₃`` to each vertex
                 block (mass plus drag terms).
         """
-        if self._all_slots is None:
-            raise RuntimeError("this sparsity pattern was retired")
+        slots = self._all_slots
         if _kernels.enabled():
             # The compiled scatter: the same sums in the same order, without
             # the concatenated copy of all blocks (kernels.py).
@@ -121,11 +129,11 @@ class SparsePattern:
             offset = 0
             for blocks in element_blocks:
                 flat = np.ascontiguousarray(blocks, dtype=np.float64).reshape(-1)
-                _kernels._scatter_slots(self._all_slots, offset, flat, data)
+                _kernels._scatter_slots(slots, offset, flat, data)
                 offset += flat.size
             return self.finish(data.reshape(-1, 3, 3), diagonal)
         values = np.concatenate([b.ravel() for b in element_blocks])
-        data = np.bincount(self._all_slots, weights=values,
+        data = np.bincount(slots, weights=values,
                            minlength=9 * self.block_count).reshape(-1, 3, 3)
         return self.finish(data, diagonal)
 
@@ -145,23 +153,44 @@ class SparsePattern:
         ``(a, b) = (0, 0)`` of each vertex pair's block (entry ``(a, b)`` is 3a + b
         further).  What compiled kernels add their blocks through: 1/9 of the
         slots to read (cached; derived from the entry slots)."""
-        if self._all_slots is None:
+        if self._retired:
             raise RuntimeError("this sparsity pattern was retired")
         if self._block_slots is None:
             out, offset = [], 0
-            for e, k in self._element_shapes:
-                entries = self._all_slots[offset:offset + 9 * e * k * k]
-                out.append(np.ascontiguousarray(entries.reshape(e, k, 3, k, 3)[:, :, 0, :, 0]))
-                offset += 9 * e * k * k
+            if self._entry_slots is None:           # the compiled build: pair slots
+                for e, k in self._element_shapes:
+                    out.append(self._owned[offset:offset + e * k * k].reshape(e, k, k))
+                    offset += e * k * k
+            else:
+                for e, k in self._element_shapes:
+                    entries = self._entry_slots[offset:offset + 9 * e * k * k]
+                    out.append(np.ascontiguousarray(
+                        entries.reshape(e, k, 3, k, 3)[:, :, 0, :, 0]))
+                    offset += 9 * e * k * k
             self._block_slots = out
         return self._block_slots
+
+    @property
+    def _all_slots(self) -> np.ndarray:
+        """``(9 Σ e k²,)`` int64: the flat BSR data index of every scalar entry
+        ``(e, i, a, j, b)`` of every element, in that order (what the numpy
+        assembly sums through); derived from the block slots when the compiled
+        build made those only (cached)."""
+        if self._retired:
+            raise RuntimeError("this sparsity pattern was retired")
+        if self._entry_slots is None:
+            parts = [(slots[:, :, None, :, None] + (3 * np.arange(3))[:, None, None]
+                      + np.arange(3)).ravel() for slots in self.block_slots]
+            self._entry_slots = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+        return self._entry_slots
 
     def retire(self, storage: "PatternStorage") -> None:
         """Give this pattern's slot array to ``storage`` for a successor; this
         pattern can no longer :meth:`assemble`."""
-        slots, self._all_slots = self._all_slots, None
-        if slots is None:
+        if self._retired:
             raise RuntimeError("this sparsity pattern was retired already")
+        slots, self._owned, self._retired = self._owned, None, True
+        self._block_slots = self._entry_slots = None
         storage.spare_slots = slots if slots.base is None else slots.base
 
     @property

@@ -4,7 +4,7 @@ An adaptive mesh changes topology at a fraction of its steps, and every
 change rebuilds the same pure functions of the new triangles: the interior
 edges as hinges (:func:`cloth_lod_ros.sim.mesh48.build_hinges`), the rest
 coefficients of every element (:func:`cloth_lod_ros.sim.forces.precompute`)
-and the first solve's sparsity pattern
+and the first solve's sparsity pattern with its block slots
 (:class:`cloth_lod_ros.sim.linear.SparsePattern`).  At adaptive-mesh sizes
 (a few hundred particles) their numpy code is mostly the overhead of some
 dozens of small passes; these kernels do each in a few loops.
@@ -205,10 +205,11 @@ def precompute(mesh: _mesh48.RestMesh) -> _forces.Elements:
 
 @_jit
 def _pattern(n, kinds, slots, scratch):
-    """linear.SparsePattern's block pattern and entry slots.
+    """linear.SparsePattern's block pattern and block slots.
 
     Args: n vertices; kinds a tuple of ``(e, k)`` int64 element vertex
-    arrays; slots ``(9 Σ e k²,)`` int64, written; scratch int64 of at least
+    arrays; slots ``(Σ e k²,)`` int64, written: each vertex pair's block
+    slot (``9 · block``); scratch int64 of at least
     ``3 Σ e k² + 2n`` (contents undefined; the large temporaries live there,
     as fresh pages of that size would cost a page fault each).  The blocks are the
     distinct vertex pairs of all elements plus every ``(i, i)``, sorted by
@@ -274,25 +275,11 @@ def _pattern(n, kinds, slots, scratch):
         diagonal[r] = where[r]
         blocks += u
         indptr[r + 1] = blocks
-    # Entry (e, i, a, j, b) of a kind at 9·block(e, i, j) + 3a + b, in that
-    # order.  The slot array is ~9x the pairs and most of the time: each
-    # element row i is built once as (j, b) -> 9·block + b and written three
-    # times plus 3a, contiguous runs that the compiler vectorises.
-    written = g = 0
-    for v in kinds:
-        k = v.shape[1]
-        row = np.empty(3 * k, np.int64)
-        for q in range(v.shape[0]):
-            for i in range(k):
-                for j in range(k):
-                    slot = 9 * columns[position[g]]
-                    row[3 * j], row[3 * j + 1], row[3 * j + 2] = slot, slot + 1, slot + 2
-                    g += 1
-                out = slots[written:written + 9 * k]
-                for a in range(3):
-                    for t in range(3 * k):
-                        out[3 * k * a + t] = row[t] + 3 * a
-                written += 9 * k
+    # Pair (e, i, j) of a kind at 9·block(e, i, j): the flat data index of
+    # its block's entry (0, 0), in (kind, e, i, j) order (SparsePattern
+    # derives the nine entry slots from it when they are asked for).
+    for g in range(entries):
+        slots[g] = 9 * columns[position[g]]
     indices = np.empty(blocks, np.int32)
     for s in range(blocks):
         indices[s] = found[s]
@@ -303,8 +290,8 @@ def sparse_pattern(n: int, element_vertices: list[np.ndarray], slots: np.ndarray
                    storage=None):
     """The compiled twin of :class:`~cloth_lod_ros.sim.linear.SparsePattern`'s
     build: ``(indices (blocks,) int32, indptr (n + 1,) int32, diagonal_block
-    (n,) int64)`` with the entry slots written into ``slots`` (int64, of the
-    pattern's size); None when the reference is to build it (kernels off, no
+    (n,) int64)`` with every vertex pair's block slot written into ``slots``
+    (int64, ``Σ e k²``: one per pair, in element order); None when the reference is to build it (kernels off, no
     elements, an index outside ``[0, n)``).
 
     Args: n vertices; element_vertices ``(e, k)`` int64 arrays; storage the
@@ -316,7 +303,7 @@ def sparse_pattern(n: int, element_vertices: list[np.ndarray], slots: np.ndarray
     kinds = tuple(np.ascontiguousarray(v) for v in element_vertices)
     if any(v.ndim != 2 or v.dtype != np.int64 for v in kinds):
         return None
-    size = 3 * (len(slots) // 9) + 2 * n
+    size = 3 * len(slots) + 2 * n
     scratch = storage.rank_table(size) if storage is not None else np.empty(size, np.int64)
     ok, indices, indptr, diagonal = _pattern(n, kinds, slots, scratch)
     return (indices, indptr, diagonal) if ok else None
@@ -329,6 +316,6 @@ def warm_up() -> None:
         return
     mesh = _mesh48.base_mesh(1.0, 1.0, 1, 1)
     elements = precompute(mesh)
-    size = 9 * (elements.triangles.size * 3 + elements.hinge_vertices.size * 4)
+    size = elements.triangles.size * 3 + elements.hinge_vertices.size * 4
     sparse_pattern(mesh.vertex_count, [elements.triangles, elements.hinge_vertices],
                    np.empty(size, np.int64))
