@@ -33,7 +33,7 @@ import numpy as np
 from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
 from .contact import nearest_surface
 from .forces import Elements, air_power
-from . import kernels, self_kernels, topology_kernels
+from . import hierarchy_kernels, kernels, self_kernels, topology_kernels
 from .topology_kernels import precompute   # compiled when numba is there
 from .kernels import elastic_energies   # compiled when numba is there
 from .grasps import Grasp
@@ -108,6 +108,7 @@ def warm_up_compiled_code() -> float:
                                    ["cloth.level=2", "self_collision.enabled=true"]))
         tiny.step()
         topology_kernels.warm_up()  # a topology change's kernels, whatever the tiny step did
+        hierarchy_kernels.warm_up()  # split/merge and a whole LOD decision
         self_kernels.warm_up()      # the broad phase's kernels a folded cloth needs
     except Exception as exc:    # never a reason to refuse the real scene: it only costs time
         log.warning("compiled kernels not warmed up (%s); the first step loads them", exc)
