@@ -72,8 +72,8 @@ def _both(reference, compiled, action):
         kernels.use(use_kernels)
         try:
             outcomes.append(("ok", action(h)))
-        except MeshError as exc:
-            outcomes.append(("error", str(exc)))
+        except (MeshError, IndexError) as exc:      # IndexError: an id outside the pool
+            outcomes.append((type(exc).__name__, str(exc)))
     kernels.use(True)
     assert outcomes[0] == outcomes[1]
     _assert_same(reference, compiled)
@@ -199,3 +199,13 @@ def test_compiled_hierarchy_copies_and_answers_queries():
     copied = copy.deepcopy(compiled)                      # typed dicts do not copy
     _assert_same(reference, copied)
     assert copied.diamond == reference.diamond
+
+
+def test_ids_the_kernels_cannot_take_go_to_the_reference():
+    """A refinement id outside the pool (negative ids index from the end in
+    numpy) or a huge vertex id: the kernels do nothing and the reference runs."""
+    reference, compiled = _pair(2, 5, 4)
+    for refine, merge in (([-1, 3], []), ([len(reference.tri) + 5], [(0, 2**40)]),
+                          ([2], [(-1, 4)])):
+        decision = LodDecision(refine, merge)
+        _both(reference, compiled, lambda h: LodPolicy.apply(h, decision, 0.5, []))

@@ -242,15 +242,18 @@ class Hierarchy48:
         if self._py_free_triangles:
             return self._py_free_triangles.pop()
         if self.tri_end == len(self.tri):
-            cap = 2 * len(self.tri)
-            for name, fill in (("tri", 0), ("level", 0), ("parent", -1), ("children", -1),
-                               ("tri_active", False), ("birth", 0.0)):
-                old = getattr(self, name)
-                new = np.full((cap,) + old.shape[1:], fill, dtype=old.dtype)
-                new[:len(old)] = old
-                setattr(self, name, new)
+            self._grow_triangles()
         self.tri_end += 1
         return self.tri_end - 1
+
+    def _grow_triangles(self) -> None:
+        cap = 2 * len(self.tri)
+        for name, fill in (("tri", 0), ("level", 0), ("parent", -1), ("children", -1),
+                           ("tri_active", False), ("birth", 0.0)):
+            old = getattr(self, name)
+            new = np.full((cap,) + old.shape[1:], fill, dtype=old.dtype)
+            new[:len(old)] = old
+            setattr(self, name, new)
 
     # Every split and merge calls these a few times.  Scalar Python on
     # ``tolist``/``item`` values, not numpy scalars or fancy indexing: numpy's
@@ -476,8 +479,8 @@ class Hierarchy48:
         """
         t = int(t)
         if _compiled.enabled() and 0 <= t < len(self.tri):
-            log = self._run_compiled(time, refine=np.array([t], np.int64))
-            return [Split((a, b)) for a, b in log[:, 1:].tolist()]
+            ops, _ = self._run_compiled(time, refine=np.array([t], np.int64))
+            return [Split((a, b)) for a, b in ops[:, 1:].tolist()]
         self._for_reference()
         ops: list[Split] = []
         self._refine(t, time, ops)
@@ -526,23 +529,25 @@ class Hierarchy48:
             instance (an instrument that must see every operation, as tests
             do): the caller runs the reference, which calls ``apply``.
         """
+        if not _compiled.enabled() or "apply" in vars(self) or "refine" in vars(self):
+            return None
         refine = np.asarray(refine, dtype=np.int64).reshape(-1)
         merge = np.asarray(merge, dtype=np.int64).reshape(-1, 2)
-        if (not _compiled.enabled() or "apply" in vars(self) or "refine" in vars(self)
-                or np.any((refine < 0) | (refine >= len(self.tri)))
-                or np.any((merge < 0) | (merge >= 2**31))):
-            return None
         if energy is not None:
             energy, kinetic, bound = (np.asarray(a, dtype=np.float64) for a in (energy, kinetic,
                                                                                 bound))
-        ops = self._run_compiled(time, refine=refine, merge=merge, energy=energy,
-                                 kinetic=kinetic, bound=bound, log=log)
-        merges = int(np.count_nonzero(ops[:, 0] == _compiled.MERGE))
-        return len(ops) - merges, merges
+        done = self._run_compiled(time, refine=refine, merge=merge, energy=energy,
+                                  kinetic=kinetic, bound=bound, log=log)
+        if done is None:
+            return None
+        ops, splits = done
+        return splits, len(ops) - splits
 
-    def _run_compiled(self, time: float, log: list | None = None, **work) -> np.ndarray:
-        """:func:`hierarchy_kernels.execute` on this hierarchy; the ``(n, 3)``
-        log of what it did (also appended to ``log`` as Split/Merge values).
+    def _run_compiled(self, time: float, log: list | None = None, **work):
+        """:func:`hierarchy_kernels.execute` on this hierarchy: ``(ops, splits)``,
+        the ``(n, 3)`` log of what it did (also appended to ``log`` as
+        Split/Merge values) and how many of them precede the merges; None if
+        an id was out of the kernels' range (nothing done).
 
         Raises:
             MeshError: as the reference for the operation that failed (the
@@ -550,13 +555,15 @@ class Hierarchy48:
         """
         index = self._kernel_index()
         self._python_current = False
-        status, edge, ops, complete = _compiled.execute(self, index, time, **work)
+        status, edge, ops, complete, splits = _compiled.execute(self, index, time, **work)
+        if status == _compiled.OUT_OF_RANGE:
+            return None
         if log is not None:
             log.extend(Split((a, b)) if kind == _compiled.SPLIT else Merge((a, b))
                        for kind, a, b in ops[:complete].tolist())
         if status != _compiled.OK:
             raise MeshError(_FAILURES[status].format(edge=edge))
-        return ops
+        return ops, splits
 
     # -- checks -------------------------------------------------------------
     def check(self) -> None:

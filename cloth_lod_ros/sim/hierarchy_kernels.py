@@ -1,10 +1,8 @@
 """Compiled (numba) split and merge for :class:`~cloth_lod_ros.sim.hierarchy.Hierarchy48`.
 
 A split or merge changes a handful of pool slots (paper §5.2–§5.3), but in
-Python each costs some tens of µs of interpreter overhead: an adaptive step
-that refines and simplifies a few dozen diamonds spent most of its LOD
-bookkeeping there.  These kernels do the same operations on the same pool
-arrays, and one call carries out a whole
+Python each cost ~70 µs of interpreter overhead.  These kernels do the same
+operations on the same pool arrays; one call carries out a whole
 :class:`~cloth_lod_ros.sim.lod.LodDecision` with the re-checks of
 :meth:`~cloth_lod_ros.sim.lod.LodPolicy.apply`.
 
@@ -30,8 +28,11 @@ containers (:class:`CompiledIndex`):
 The pool arrays travel as two tuples, vertices ``(uv, x, v, mass_units,
 vertex_active, vertex_edge, vertex_parents, free_vertex_stack)`` and
 triangles ``(tri, level, parent, children, tri_active, birth,
-free_triangle_stack)``; a kernel that grows a pool (doubling it when the
-reference would) returns the new tuple.
+free_triangle_stack)``, and the kernels return only a status: a split
+that finds its pool full stops before changing anything, the caller doubles
+that pool (as the reference would during this split) and calls again, which
+resumes where it stopped.  (Returning the fifteen arrays from every call
+cost more than the operations; a pool grows a few times per run.)
 """
 
 from __future__ import annotations
@@ -49,7 +50,10 @@ SPLIT, MERGE = 0, 1
 #: Statuses: done; a split of an edge that is not the hypotenuse of all its
 #: triangles; a split at the maximum level; a merge of an edge not split; a
 #: merge whose children are refined further; an edge with a third triangle.
-OK, NOT_HYPOTENUSE, AT_MAX_LEVEL, NOT_SPLIT, REFINED_FURTHER, INDEX_BROKEN = range(6)
+#: NEED_VERTICES / NEED_TRIANGLES: that pool is full; grow it and call again.
+#: OUT_OF_RANGE: an id the kernels cannot take (nothing done; use the reference).
+(OK, NOT_HYPOTENUSE, AT_MAX_LEVEL, NOT_SPLIT, REFINED_FURTHER, INDEX_BROKEN, NEED_VERTICES,
+ NEED_TRIANGLES, OUT_OF_RANGE) = range(9)
 # Counters shared with the caller: pool high-water marks, free-list sizes and
 # the topology version (int64 array, written back after the call).
 _VERTEX_END, _TRIANGLE_END, _FREE_VERTICES, _FREE_TRIANGLES, _VERSION = range(5)
@@ -130,74 +134,53 @@ def _unlink(edges, mass_units, tri_active, t, a, b, c, units):
 
 
 @_jit
-def _grow_vertices(vp):
-    """Double the vertex pool (Hierarchy48._grow_vertices: zeros, -1 links)."""
-    old = vp[0].shape[0]
-    cap = 2 * old
-    uv, x, v = np.zeros((cap, 2)), np.zeros((cap, 3)), np.zeros((cap, 3))
-    mass_units, active = np.zeros(cap), np.zeros(cap, np.bool_)
-    edge, parents = np.full((cap, 2), -1, np.int64), np.full((cap, 2), -1, np.int64)
-    stack = np.zeros(cap, np.int64)
-    uv[:old], x[:old], v[:old], mass_units[:old] = vp[0], vp[1], vp[2], vp[3]
-    active[:old], edge[:old], parents[:old], stack[:old] = vp[4], vp[5], vp[6], vp[7]
-    return (uv, x, v, mass_units, active, edge, parents, stack)
-
-
-@_jit
-def _grow_triangles(tp):
-    """Double the triangle pool (Hierarchy48._new_triangle's fill values)."""
-    old = tp[0].shape[0]
-    cap = 2 * old
-    tri, level = np.zeros((cap, 3), np.int64), np.zeros(cap, np.int64)
-    parent, children = np.full(cap, -1, np.int64), np.full((cap, 2), -1, np.int64)
-    active, birth, stack = np.zeros(cap, np.bool_), np.zeros(cap), np.zeros(cap, np.int64)
-    tri[:old], level[:old], parent[:old], children[:old] = tp[0], tp[1], tp[2], tp[3]
-    active[:old], birth[:old], stack[:old] = tp[4], tp[5], tp[6]
-    return (tri, level, parent, children, active, birth, stack)
-
-
-@_jit
 def _new_vertex(vp, counters):
-    """A free vertex slot: the last freed one, else the next (growing)."""
+    """A free vertex slot: the last freed one, else the next (room checked)."""
     if counters[_FREE_VERTICES] > 0:
         counters[_FREE_VERTICES] -= 1
-        return vp, vp[7][counters[_FREE_VERTICES]]
-    if counters[_VERTEX_END] == vp[0].shape[0]:
-        vp = _grow_vertices(vp)
+        return vp[7][counters[_FREE_VERTICES]]
     counters[_VERTEX_END] += 1
-    return vp, counters[_VERTEX_END] - 1
+    return counters[_VERTEX_END] - 1
 
 
 @_jit
 def _new_triangle(tp, counters):
-    """A free triangle slot: the last freed one, else the next (growing)."""
+    """A free triangle slot: the last freed one, else the next (room checked)."""
     if counters[_FREE_TRIANGLES] > 0:
         counters[_FREE_TRIANGLES] -= 1
-        return tp, tp[6][counters[_FREE_TRIANGLES]]
-    if counters[_TRIANGLE_END] == tp[0].shape[0]:
-        tp = _grow_triangles(tp)
+        return tp[6][counters[_FREE_TRIANGLES]]
     counters[_TRIANGLE_END] += 1
-    return tp, counters[_TRIANGLE_END] - 1
+    return counters[_TRIANGLE_END] - 1
 
 
 @_jit
 def _split(vp, tp, counters, edges, midpoints, left, right, time, max_level):
-    """Hierarchy48._split of the sorted edge ``(left, right)``; ``(status, vp, tp)``."""
+    """Hierarchy48._split of the sorted edge ``(left, right)``; the status.
+
+    A full pool is not grown here (returning new arrays from a kernel costs
+    more than the split): the split returns NEED_VERTICES or NEED_TRIANGLES
+    before changing anything, the caller doubles that pool, as the reference
+    would in this split, and calls again.
+    """
     key = _edge_key(left, right)
     packed = edges.get(key, 0)
     if packed == 0:
-        return NOT_HYPOTENUSE, vp, tp
+        return NOT_HYPOTENUSE
     first, second = (packed & _LOW) - 1, (packed >> 32) - 1
     count = 1 if second < 0 else 2
     tri = tp[0]
     for i in range(count):
         t = first if i == 0 else second
         if _edge_key(tri[t, 1], tri[t, 2]) != key:
-            return NOT_HYPOTENUSE, vp, tp
+            return NOT_HYPOTENUSE
     level = tp[1][first]
     if level >= max_level:
-        return AT_MAX_LEVEL, vp, tp
-    vp, m = _new_vertex(vp, counters)
+        return AT_MAX_LEVEL
+    if counters[_FREE_VERTICES] == 0 and counters[_VERTEX_END] == vp[0].shape[0]:
+        return NEED_VERTICES
+    if counters[_FREE_TRIANGLES] + tp[0].shape[0] - counters[_TRIANGLE_END] < 2 * count:
+        return NEED_TRIANGLES
+    m = _new_vertex(vp, counters)
     uv, x, v = vp[0], vp[1], vp[2]
     # The face rule: nothing moves, and the midpoint takes the ends' average
     # velocity (momentum kept); 0.5 * (a + b) per component as the reference.
@@ -219,8 +202,8 @@ def _split(vp, tp, counters, edges, midpoints, left, right, time, max_level):
         tri = tp[0]
         apex, leg_end, hyp_end = tri[t, 0], tri[t, 1], tri[t, 2]
         ok &= _unlink(edges, mass_units, tp[4], t, apex, leg_end, hyp_end, units)
-        tp, kid0 = _new_triangle(tp, counters)
-        tp, kid1 = _new_triangle(tp, counters)
+        kid0 = _new_triangle(tp, counters)
+        kid1 = _new_triangle(tp, counters)
         tri, kid_level, parent, children, birth = tp[0], tp[1], tp[2], tp[3], tp[5]
         for j in range(2):
             kid = kid0 if j == 0 else kid1
@@ -235,22 +218,22 @@ def _split(vp, tp, counters, edges, midpoints, left, right, time, max_level):
         children[t, 0], children[t, 1] = kid0, kid1
     midpoints[key] = m
     counters[_VERSION] += 1
-    return (OK if ok else INDEX_BROKEN), vp, tp
+    return OK if ok else INDEX_BROKEN
 
 
 @_jit
 def _merge(vp, tp, counters, edges, midpoints, left, right, time):
-    """Hierarchy48._merge of the sorted edge ``(left, right)``; ``(status, vp, tp)``."""
+    """Hierarchy48._merge of the sorted edge ``(left, right)``; the status."""
     key = _edge_key(left, right)
     if key not in midpoints:
-        return NOT_SPLIT, vp, tp
+        return NOT_SPLIT
     m = midpoints[key]
     tri, level, children, active, birth = tp[0], tp[1], tp[3], tp[4], tp[5]
     parents = vp[6]
     for i in range(2):
         t = parents[m, i]
         if t >= 0 and not (active[children[t, 0]] and active[children[t, 1]]):
-            return REFINED_FURTHER, vp, tp
+            return REFINED_FURTHER
     mass_units, v = vp[3], vp[2]
     mass_m = mass_units[m]
     ok = True
@@ -290,7 +273,7 @@ def _merge(vp, tp, counters, edges, midpoints, left, right, time):
     counters[_FREE_VERTICES] += 1
     midpoints.pop(key)
     counters[_VERSION] += 1
-    return (OK if ok else INDEX_BROKEN), vp, tp
+    return OK if ok else INDEX_BROKEN
 
 
 @_jit
@@ -301,8 +284,10 @@ def _refine(vp, tp, counters, edges, midpoints, t, time, max_level, log, logged)
     before splitting; the neighbours form a chain of strictly coarser
     triangles, so walking it first and splitting its hypotenuses from the far
     end is the same sequence.  Nothing is split if a link is inactive or at
-    the maximum level.  Returns ``(status, left, right, vp, tp, logged)``
-    (the edge whose split failed, else -1).
+    the maximum level.  Returns ``(status, left, right, logged)`` (the edge
+    whose split failed or lacked room, else -1).  After a NEED_* status and
+    the growth, the same call again walks only what is left of the chain
+    (the links split already are conforming now), so it resumes exactly.
     """
     chain = np.empty((max_level + 2, 2), np.int64)
     length = 0
@@ -310,7 +295,7 @@ def _refine(vp, tp, counters, edges, midpoints, t, time, max_level, log, logged)
     while True:
         tri = tp[0]
         if not tp[4][current] or tp[1][current] >= max_level or length == chain.shape[0]:
-            return OK, -1, -1, vp, tp, logged
+            return OK, -1, -1, logged
         a, b = min(tri[current, 1], tri[current, 2]), max(tri[current, 1], tri[current, 2])
         chain[length, 0], chain[length, 1] = a, b
         length += 1
@@ -325,13 +310,13 @@ def _refine(vp, tp, counters, edges, midpoints, t, time, max_level, log, logged)
             break
         current = coarser
     for i in range(length - 1, -1, -1):
-        status, vp, tp = _split(vp, tp, counters, edges, midpoints, chain[i, 0], chain[i, 1],
-                                time, max_level)
+        status = _split(vp, tp, counters, edges, midpoints, chain[i, 0], chain[i, 1], time,
+                        max_level)
         if status != OK:
-            return status, chain[i, 0], chain[i, 1], vp, tp, logged
+            return status, chain[i, 0], chain[i, 1], logged
         log[logged, 0], log[logged, 1], log[logged, 2] = SPLIT, chain[i, 0], chain[i, 1]
         logged += 1
-    return OK, -1, -1, vp, tp, logged
+    return OK, -1, -1, logged
 
 
 @_jit
@@ -371,43 +356,57 @@ def _add_triangle_edges(changed, tri, t, legs_only):
 
 @_jit
 def _execute(vp, tp, counters, edges, midpoints, direct, refine, merge, energy, kinetic,
-             bound, check_energy, time, max_level, unit_mass, log_capacity):
+             bound, check_energy, time, max_level, unit_mass, log, resume):
     """Carry out ``direct`` operations (``(p, 3)`` rows kind, left, right), then
     the refinements ``refine`` ``(r,)`` and the merges ``merge`` ``(k, 2)`` of a
     decision with LodPolicy.apply's re-checks (its docstring says why).
 
-    Returns ``(status, left, right, vp, tp, log, logged, complete)``: the log
-    ``(log_capacity, 3)`` holds ``logged`` operations, the first ``complete``
-    of them whole requests (a refinement that failed half way is not).
+    Operations are logged in ``log`` (rows kind, left, right).  ``resume``
+    ``(5,)`` int64 is where to start and is updated in place: the next direct
+    operation, the next refinement, the log rows written, the rows of whole
+    requests (a refinement that failed half way is not one) and the rows
+    before the merges.  Returns ``(status, left, right)``: OK, or the failure
+    (or NEED_* to grow a pool and call again) and its edge.
     """
-    log = np.empty((log_capacity, 3), np.int64)
-    logged = 0
-    for i in range(direct.shape[0]):
+    if resume[2] == 0:          # first call: ids the reference would index otherwise
+        for i in range(refine.shape[0]):
+            if refine[i] < 0 or refine[i] >= tp[0].shape[0]:
+                return OUT_OF_RANGE, -1, -1
+        for i in range(merge.shape[0]):
+            if min(merge[i, 0], merge[i, 1]) < 0 or max(merge[i, 0], merge[i, 1]) >= 2**31:
+                return OUT_OF_RANGE, -1, -1
+    for i in range(resume[0], direct.shape[0]):
         kind, a, b = direct[i, 0], direct[i, 1], direct[i, 2]
         if kind == SPLIT:
-            status, vp, tp = _split(vp, tp, counters, edges, midpoints, a, b, time, max_level)
+            status = _split(vp, tp, counters, edges, midpoints, a, b, time, max_level)
         else:
-            status, vp, tp = _merge(vp, tp, counters, edges, midpoints, a, b, time)
+            status = _merge(vp, tp, counters, edges, midpoints, a, b, time)
         if status != OK:
-            return status, a, b, vp, tp, log, logged, logged
-        log[logged, 0], log[logged, 1], log[logged, 2] = kind, a, b
-        logged += 1
+            return status, a, b
+        log[resume[2], 0], log[resume[2], 1], log[resume[2], 2] = kind, a, b
+        resume[0], resume[2], resume[3] = i + 1, resume[2] + 1, resume[2] + 1
+    for i in range(resume[1], refine.shape[0]):
+        status, a, b, logged = _refine(vp, tp, counters, edges, midpoints, refine[i], time,
+                                       max_level, log, resume[2])
+        resume[2] = logged
+        if status != OK:
+            return status, a, b
+        resume[1], resume[3] = i + 1, logged
+    resume[4] = resume[2]
+    if merge.shape[0] == 0:
+        return OK, -1, -1
+    # What the refinements changed: the ends of every split edge (mass and
+    # velocity) and every edge of the triangles they split.
     moved = {np.int64(-1)}           # particles whose mass or velocity changed
     changed = {np.int64(-1)}         # packed edges whose triangles were replaced
-    for i in range(refine.shape[0]):
-        start = logged
-        status, a, b, vp, tp, logged = _refine(vp, tp, counters, edges, midpoints, refine[i],
-                                               time, max_level, log, logged)
-        if status != OK:
-            return status, a, b, vp, tp, log, logged, start
-        for j in range(start, logged):
-            a, b = log[j, 1], log[j, 2]
-            moved.add(a)
-            moved.add(b)
-            m = midpoints[_edge_key(a, b)]
-            for p in range(2):
-                if vp[6][m, p] >= 0:
-                    _add_triangle_edges(changed, tp[0], vp[6][m, p], False)
+    for j in range(direct.shape[0], resume[2]):
+        a, b = log[j, 1], log[j, 2]
+        moved.add(a)
+        moved.add(b)
+        m = midpoints[_edge_key(a, b)]
+        for p in range(2):
+            if vp[6][m, p] >= 0:
+                _add_triangle_edges(changed, tp[0], vp[6][m, p], False)
     for i in range(merge.shape[0]):
         a, b = merge[i, 0], merge[i, 1]
         key = _edge_key(a, b)
@@ -430,17 +429,18 @@ def _execute(vp, tp, counters, edges, midpoints, direct, refine, merge, energy, 
         if not mergeable:
             continue
         first, second = vp[6][m, 0], vp[6][m, 1]       # the merge clears them
-        status, vp, tp = _merge(vp, tp, counters, edges, midpoints, a, b, time)
+        status = _merge(vp, tp, counters, edges, midpoints, a, b, time)
         if status != OK:
-            return status, a, b, vp, tp, log, logged, logged
-        log[logged, 0], log[logged, 1], log[logged, 2] = MERGE, a, b
-        logged += 1
+            return status, a, b
+        log[resume[2], 0], log[resume[2], 1], log[resume[2], 2] = MERGE, a, b
+        resume[2] += 1
+        resume[3] = resume[2]
         moved.add(a)
         moved.add(b)
         for t in (first, second):
             if t >= 0:
                 _add_triangle_edges(changed, tp[0], t, True)
-    return OK, -1, -1, vp, tp, log, logged, logged
+    return OK, -1, -1
 
 
 @_jit
@@ -467,17 +467,13 @@ def _export_index(edges, midpoints):
     """Inverse of :func:`_build_index`: ``(edge_keys, edge_users, split_edges,
     split_midpoints)`` in the dicts' (insertion) order."""
     edge_keys, edge_users = np.empty((len(edges), 2), np.int64), np.empty((len(edges), 2), np.int64)
-    i = 0
-    for key, packed in edges.items():
+    for i, (key, packed) in enumerate(edges.items()):
         edge_keys[i, 0], edge_keys[i, 1] = key >> 32, key & _LOW
         edge_users[i, 0], edge_users[i, 1] = (packed & _LOW) - 1, (packed >> 32) - 1
-        i += 1
     split_edges, split_midpoints = np.empty((len(midpoints), 2), np.int64), np.empty(
         len(midpoints), np.int64)
-    i = 0
-    for key, m in midpoints.items():
+    for i, (key, m) in enumerate(midpoints.items()):
         split_edges[i, 0], split_edges[i, 1], split_midpoints[i] = key >> 32, key & _LOW, m
-        i += 1
     return edge_keys, edge_users, split_edges, split_midpoints
 
 
@@ -531,10 +527,8 @@ class CompiledIndex:
         return [t - 1 for t in (packed & _LOW, packed >> 32) if t]
 
 
-_EMPTY_OPS = np.zeros((0, 3), np.int64)
-_EMPTY_EDGES = np.zeros((0, 2), np.int64)
-_EMPTY_IDS = np.zeros(0, np.int64)
-_EMPTY_VALUES = np.zeros(0)
+_EMPTY_OPS, _EMPTY_EDGES = np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64)
+_EMPTY_IDS, _EMPTY_VALUES = np.zeros(0, np.int64), np.zeros(0)
 
 
 def execute(hierarchy, index: CompiledIndex, time: float, direct=_EMPTY_OPS, refine=_EMPTY_IDS,
@@ -552,31 +546,39 @@ def execute(hierarchy, index: CompiledIndex, time: float, direct=_EMPTY_OPS, ref
             no kinetic re-test).
 
     Returns:
-        ``(status, edge, log, complete)``: status (:data:`OK` or the reason an
-        operation failed, for ``edge``), the ``(n, 3)`` log of the operations
-        performed and how many of them belong to whole requests.
+        ``(status, edge, log, complete, splits)``: status (:data:`OK`, the
+        reason an operation failed, for ``edge``, or OUT_OF_RANGE: nothing
+        done), the ``(n, 3)`` log of the operations performed, how many of
+        them belong to whole requests, and how many precede the merges.
     """
     h = hierarchy
     counters = np.array([h.vertex_end, h.tri_end, index.free_vertex_count,
                          index.free_triangle_count, h.version], dtype=np.int64)
-    vp = (h.uv, h.x, h.v, h.mass_units, h.vertex_active, h.vertex_edge, h.vertex_parents,
-          index.free_vertex_stack)
-    tp = (h.tri, h.level, h.parent, h.children, h.tri_active, h.birth, index.free_triangle_stack)
     check_energy = energy is not None
     if not check_energy:
         energy = kinetic = bound = _EMPTY_VALUES
     # A refinement makes at most one split per level of its chain.
-    capacity = len(direct) + len(refine) * (h.max_level + 2) + len(merge)
-    status, left, right, vp, tp, log, logged, complete = _execute(
-        vp, tp, counters, index.edges, index.midpoints, direct, refine, merge, energy,
-        kinetic, bound, check_energy, float(time), h.max_level, h.unit_mass, capacity)
-    (h.uv, h.x, h.v, h.mass_units, h.vertex_active, h.vertex_edge, h.vertex_parents,
-     index.free_vertex_stack) = vp
-    (h.tri, h.level, h.parent, h.children, h.tri_active, h.birth,
-     index.free_triangle_stack) = tp
+    log = np.empty((len(direct) + len(refine) * (h.max_level + 2) + len(merge), 3), np.int64)
+    resume = np.zeros(5, np.int64)
+    while True:
+        vp = (h.uv, h.x, h.v, h.mass_units, h.vertex_active, h.vertex_edge, h.vertex_parents,
+              index.free_vertex_stack)
+        tp = (h.tri, h.level, h.parent, h.children, h.tri_active, h.birth,
+              index.free_triangle_stack)
+        status, left, right = _execute(vp, tp, counters, index.edges, index.midpoints, direct,
+                                       refine, merge, energy, kinetic, bound, check_energy,
+                                       float(time), h.max_level, h.unit_mass, log, resume)
+        if status == NEED_VERTICES:
+            h._grow_vertices()
+            index.free_vertex_stack = np.resize(index.free_vertex_stack, len(h.uv))
+        elif status == NEED_TRIANGLES:
+            h._grow_triangles()
+            index.free_triangle_stack = np.resize(index.free_triangle_stack, len(h.tri))
+        else:
+            break
     (h.vertex_end, h.tri_end, index.free_vertex_count, index.free_triangle_count,
      h.version) = counters.tolist()
-    return int(status), (int(left), int(right)), log[:logged], int(complete)
+    return int(status), (int(left), int(right)), log[:resume[2]], int(resume[3]), int(resume[4])
 
 
 def warm_up() -> None:
