@@ -33,7 +33,8 @@ import numpy as np
 from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
 from .contact import nearest_surface
 from .forces import Elements, air_power
-from . import kernels, lod_kernels, projection_kernels, self_kernels, topology_kernels
+from . import (hierarchy_kernels, kernels, lod_kernels, projection_kernels, self_kernels,
+               topology_kernels)
 from .topology_kernels import precompute   # compiled when numba is there
 from .kernels import elastic_energies   # compiled when numba is there
 from .grasps import Grasp
@@ -108,6 +109,7 @@ def warm_up_compiled_code() -> float:
                                    ["cloth.level=2", "self_collision.enabled=true"]))
         tiny.step()
         topology_kernels.warm_up()  # a topology change's kernels, whatever the tiny step did
+        hierarchy_kernels.warm_up()  # split/merge and a whole LOD decision
         self_kernels.warm_up()      # the broad phase's kernels a folded cloth needs
         projection_kernels.warm_up()  # sliding contacts' projection, if the tiny step had none
         lod_kernels.warm_up()       # the LOD criterion's, whether or not the tiny step merged

@@ -16,6 +16,13 @@ re-activates the parents (paper §5.3).  Active edges are indexed in a dict from
 the sorted vertex pair to its one or two active triangles, which is what finds
 the neighbour across a hypotenuse.
 
+**Compiled operations.**  With numba (and ``CLOTH_LOD_KERNELS`` not ``numpy``)
+``apply``, ``refine``, ``refine_uniform`` and :meth:`Hierarchy48.carry_out` (a
+whole LOD decision) run :mod:`cloth_lod_ros.sim.hierarchy_kernels` on the same
+arrays, with the edge index, midpoint map and free lists in the kernels' form;
+the Python methods here are their reference, with bitwise equal results.  The
+Python containers are rebuilt from the kernels' form when read.
+
 **Operations are values.**  ``Split(edge)`` bisects the hypotenuse ``edge`` shared
 by its one or two triangles; ``Merge(edge)`` removes that edge's midpoint and
 restores the two triangles.  ``Split(e).inverse() == Merge(e)`` and vice versa;
@@ -40,6 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import hierarchy_kernels as _compiled
 from .mesh48 import MeshError, RestMesh
 
 __all__ = ["Split", "Merge", "Hierarchy48", "merge_velocity_change"]
@@ -69,6 +77,21 @@ def merge_velocity_change(mass_mid, mass_ends, v_mid: np.ndarray, v_left: np.nda
 
 def _key(a: int, b: int) -> tuple[int, int]:
     return (a, b) if a < b else (b, a)
+
+
+def _fits(edge) -> bool:
+    """Whether the kernels can take the edge's ids (packed in 32 bits each)."""
+    return all(0 <= int(i) < 2**31 for i in edge)
+
+
+#: The reference's error messages, by kernel status.
+_FAILURES = {
+    _compiled.NOT_HYPOTENUSE: "cannot split {edge}: not the hypotenuse of all its triangles",
+    _compiled.AT_MAX_LEVEL: "cannot split {edge}: triangles already at the maximum level",
+    _compiled.NOT_SPLIT: "cannot merge {edge}: it is not split",
+    _compiled.REFINED_FURTHER: "cannot merge {edge}: its children are refined further",
+    _compiled.INDEX_BROKEN: "edge index broken at {edge}: an edge with three triangles",
+}
 
 
 @dataclass(frozen=True)
@@ -127,22 +150,78 @@ class Hierarchy48:
         self.tri_active = np.zeros(tcap, dtype=bool)
         self.birth = np.zeros(tcap)
         self.vertex_end, self.tri_end = n, t          # high-water marks
-        self._free_vertices: list[int] = []
-        self._free_triangles: list[int] = []
+        # The index in Python containers (the reference's form); with the
+        # kernels on, a CompiledIndex holds it instead and these are rebuilt
+        # from it only when read (_python_index).
+        self._py_free_vertices: list[int] = []
+        self._py_free_triangles: list[int] = []
         self.uv[:n] = base.uv
         self.x[:n] = positions
         self.vertex_active[:n] = True
         self.tri[:t] = base.triangles
-        self._edges: dict[tuple[int, int], list[int]] = {}
-        self.midpoint: dict[tuple[int, int], int] = {}
+        self._py_edges: dict[tuple[int, int], list[int]] = {}
+        self._py_midpoint: dict[tuple[int, int], int] = {}
+        self._python_current = True           # the containers above are up to date
+        self._compiled: _compiled.CompiledIndex | None = None   # None: stale
         for k in range(t):
             self._activate(k, 0.0)
         self.version = 0            # bumped on every topology change
 
+    # -- the index's two forms ----------------------------------------------
+    # Exactly one of them is changed by an operation: the reference's Python
+    # containers (kernels off) or the CompiledIndex.  Reading the other
+    # rebuilds it (O(size), in order, so the results are the same either way).
+    def _python_index(self) -> None:
+        if not self._python_current:
+            (self._py_edges, self._py_midpoint, self._py_free_vertices,
+             self._py_free_triangles) = self._compiled.to_python()
+            self._python_current = True
+
+    def _kernel_index(self) -> "_compiled.CompiledIndex":
+        if self._compiled is None:
+            self._compiled = _compiled.CompiledIndex(
+                self._py_edges, self._py_midpoint, self._py_free_vertices,
+                self._py_free_triangles, len(self.uv), len(self.tri))
+        return self._compiled
+
+    def _for_reference(self) -> None:
+        """Before the Python code changes the index: make it current, and
+        drop the compiled one it is about to outdate."""
+        self._python_index()
+        self._compiled = None
+
+    @property
+    def midpoint(self) -> dict[tuple[int, int], int]:
+        """Split edge (sorted pool vertex pair) -> its midpoint particle."""
+        self._python_index()
+        return self._py_midpoint
+
+    @property
+    def _edges(self) -> dict[tuple[int, int], list[int]]:
+        self._python_index()
+        return self._py_edges
+
+    @property
+    def _free_vertices(self) -> list[int]:
+        self._python_index()
+        return self._py_free_vertices
+
+    @property
+    def _free_triangles(self) -> list[int]:
+        self._python_index()
+        return self._py_free_triangles
+
+    def __getstate__(self) -> dict:
+        """Copies and pickles carry the Python form (typed dicts do not copy)."""
+        self._python_index()
+        state = dict(self.__dict__)
+        state["_compiled"] = None
+        return state
+
     # -- pool management ----------------------------------------------------
     def _new_vertex(self) -> int:
-        if self._free_vertices:
-            return self._free_vertices.pop()
+        if self._py_free_vertices:
+            return self._py_free_vertices.pop()
         if self.vertex_end == len(self.uv):
             self._grow_vertices()
         self.vertex_end += 1
@@ -160,18 +239,21 @@ class Hierarchy48:
             setattr(self, name, new)
 
     def _new_triangle(self) -> int:
-        if self._free_triangles:
-            return self._free_triangles.pop()
+        if self._py_free_triangles:
+            return self._py_free_triangles.pop()
         if self.tri_end == len(self.tri):
-            cap = 2 * len(self.tri)
-            for name, fill in (("tri", 0), ("level", 0), ("parent", -1), ("children", -1),
-                               ("tri_active", False), ("birth", 0.0)):
-                old = getattr(self, name)
-                new = np.full((cap,) + old.shape[1:], fill, dtype=old.dtype)
-                new[:len(old)] = old
-                setattr(self, name, new)
+            self._grow_triangles()
         self.tri_end += 1
         return self.tri_end - 1
+
+    def _grow_triangles(self) -> None:
+        cap = 2 * len(self.tri)
+        for name, fill in (("tri", 0), ("level", 0), ("parent", -1), ("children", -1),
+                           ("tri_active", False), ("birth", 0.0)):
+            old = getattr(self, name)
+            new = np.full((cap,) + old.shape[1:], fill, dtype=old.dtype)
+            new[:len(old)] = old
+            setattr(self, name, new)
 
     # Every split and merge calls these a few times.  Scalar Python on
     # ``tolist``/``item`` values, not numpy scalars or fancy indexing: numpy's
@@ -188,7 +270,7 @@ class Hierarchy48:
     def _link(self, t: int, a: int, b: int, c: int, units: float) -> None:
         """Make triangle ``t`` with corners ``(a, b, c)`` active: index its edges
         and give each corner ``units`` mass units (``2**-level``; exact)."""
-        edges = self._edges
+        edges = self._py_edges
         for e in ((a, b) if a < b else (b, a), (b, c) if b < c else (c, b),
                   (c, a) if c < a else (a, c)):
             users = edges.get(e)
@@ -204,7 +286,7 @@ class Hierarchy48:
 
     def _unlink(self, t: int, a: int, b: int, c: int, units: float) -> None:
         """Inverse of :meth:`_link`."""
-        edges = self._edges
+        edges = self._py_edges
         for e in ((a, b) if a < b else (b, a), (b, c) if b < c else (c, b),
                   (c, a) if c < a else (a, c)):
             users = edges[e]
@@ -223,7 +305,10 @@ class Hierarchy48:
 
     def edge_triangles(self, edge: tuple[int, int]) -> list[int]:
         """Active triangles on an edge (sorted vertex pair); empty if not an edge."""
-        return list(self._edges.get(_key(*edge), ()))
+        edge = _key(*edge)
+        if not self._python_current:
+            return self._compiled.edge_triangles(*edge)
+        return list(self._py_edges.get(edge, ()))
 
     @property
     def masses(self) -> np.ndarray:
@@ -293,6 +378,11 @@ class Hierarchy48:
                 the maximum level; a merge of an edge that is not split or
                 whose children are not all leaves).
         """
+        if isinstance(op, (Split, Merge)) and _compiled.enabled() and _fits(op.edge):
+            kind = _compiled.SPLIT if isinstance(op, Split) else _compiled.MERGE
+            self._run_compiled(time, direct=np.array([(kind, *_key(*op.edge))], np.int64))
+            return
+        self._for_reference()
         if isinstance(op, Split):
             self._split(op.edge, time)
         elif isinstance(op, Merge):
@@ -304,7 +394,7 @@ class Hierarchy48:
     def _split(self, edge: tuple[int, int], time: float) -> None:
         edge = _key(*edge)
         left, right = edge
-        tris = list(self._edges.get(edge, ()))
+        tris = list(self._py_edges.get(edge, ()))
         corners = [self.tri[t].tolist() for t in tris]
         if not tris or any(_key(c[1], c[2]) != edge for c in corners):
             raise MeshError(f"cannot split {edge}: not the hypotenuse of all its triangles")
@@ -336,11 +426,11 @@ class Hierarchy48:
                 self._link(kid, a, b, c, kid_units)
                 birth[kid] = time
             children[t, 0], children[t, 1] = kids
-        self.midpoint[edge] = m
+        self._py_midpoint[edge] = m
 
     def _merge(self, edge: tuple[int, int], time: float) -> None:
         edge = _key(*edge)
-        m = self.midpoint.get(edge)
+        m = self._py_midpoint.get(edge)
         if m is None:
             raise MeshError(f"cannot merge {edge}: it is not split")
         parents = [t for t in self.vertex_parents[m].tolist() if t >= 0]
@@ -354,7 +444,7 @@ class Hierarchy48:
         for t, pair in zip(parents, kids):
             for kid in pair:
                 self._deactivate(kid)
-                self._free_triangles.append(kid)
+                self._py_free_triangles.append(kid)
             self.children[t, 0] = self.children[t, 1] = -1
             self._activate(t, time)
         # Momentum: m's mass went back to the edge ends (equally); give both the
@@ -376,8 +466,8 @@ class Hierarchy48:
         self.vertex_parents[m] = -1
         self.x[m] = 0.0
         v[m] = 0.0
-        self._free_vertices.append(m)
-        del self.midpoint[edge]
+        self._py_free_vertices.append(m)
+        del self._py_midpoint[edge]
 
     def refine(self, t: int, time: float = 0.0) -> list[Split]:
         """Bisect active triangle ``t`` (paper's ``Subdivide48``), forcing splits.
@@ -387,8 +477,13 @@ class Hierarchy48:
         the splits performed, forced ones first; empty if ``t`` is inactive or at
         the maximum level.
         """
+        t = int(t)
+        if _compiled.enabled() and 0 <= t < len(self.tri):
+            ops, _ = self._run_compiled(time, refine=np.array([t], np.int64))
+            return [Split((a, b)) for a, b in ops[:, 1:].tolist()]
+        self._for_reference()
         ops: list[Split] = []
-        self._refine(int(t), time, ops)
+        self._refine(t, time, ops)
         return ops
 
     def _refine(self, t: int, time: float, ops: list[Split]) -> bool:
@@ -408,9 +503,67 @@ class Hierarchy48:
     def refine_uniform(self, levels: int, time: float = 0.0) -> None:
         """Split every active triangle ``levels`` times (set-up, not the time step)."""
         for _ in range(int(levels)):
+            if _compiled.enabled():
+                # One call: a refinement of a triangle split meanwhile does
+                # nothing, as the reference's tri_active test.
+                self._run_compiled(time, refine=self.active_triangles().astype(np.int64))
+                continue
             for t in self.active_triangles():
                 if self.tri_active[t]:
                     self.refine(int(t), time)
+
+    def carry_out(self, refine, merge, time: float, energy=None, kinetic=None, bound=None,
+                  log: list | None = None) -> tuple[int, int] | None:
+        """:meth:`cloth_lod_ros.sim.lod.LodPolicy.apply`'s work in one compiled call.
+
+        Args:
+            refine: pool triangles to refine, in order; merge: split edges
+                (sorted pairs) to merge after them, with that method's checks
+                (``energy``, ``kinetic``, ``bound``: ``(len(merge),)`` J, the
+                decision's, or None for no kinetic re-test).
+            log: list the operations performed are appended to.
+
+        Returns:
+            ``(splits, merges)``, or None (nothing done) when the kernels are
+            off, an id is out of their range, or ``apply`` is replaced on this
+            instance (an instrument that must see every operation, as tests
+            do): the caller runs the reference, which calls ``apply``.
+        """
+        if not _compiled.enabled() or "apply" in vars(self) or "refine" in vars(self):
+            return None
+        refine = np.asarray(refine, dtype=np.int64).reshape(-1)
+        merge = np.asarray(merge, dtype=np.int64).reshape(-1, 2)
+        if energy is not None:
+            energy, kinetic, bound = (np.asarray(a, dtype=np.float64) for a in (energy, kinetic,
+                                                                                bound))
+        done = self._run_compiled(time, refine=refine, merge=merge, energy=energy,
+                                  kinetic=kinetic, bound=bound, log=log)
+        if done is None:
+            return None
+        ops, splits = done
+        return splits, len(ops) - splits
+
+    def _run_compiled(self, time: float, log: list | None = None, **work):
+        """:func:`hierarchy_kernels.execute` on this hierarchy: ``(ops, splits)``,
+        the ``(n, 3)`` log of what it did (also appended to ``log`` as
+        Split/Merge values) and how many of them precede the merges; None if
+        an id was out of the kernels' range (nothing done).
+
+        Raises:
+            MeshError: as the reference for the operation that failed (the
+                operations of the whole requests before it stay done and logged).
+        """
+        index = self._kernel_index()
+        self._python_current = False
+        status, edge, ops, complete, splits = _compiled.execute(self, index, time, **work)
+        if status == _compiled.OUT_OF_RANGE:
+            return None
+        if log is not None:
+            log.extend(Split((a, b)) if kind == _compiled.SPLIT else Merge((a, b))
+                       for kind, a, b in ops[:complete].tolist())
+        if status != _compiled.OK:
+            raise MeshError(_FAILURES[status].format(edge=edge))
+        return ops, splits
 
     # -- checks -------------------------------------------------------------
     def check(self) -> None:

@@ -308,7 +308,17 @@ class LodPolicy:
         bound.  A skipped merge, or one a split made invalid, is decided again
         at the next check.  With ``log``, every operation performed is
         appended to it in order (undo: apply their inverses in reverse).
+
+        With the compiled kernels, :meth:`Hierarchy48.carry_out` does all of
+        this in one call (the code below is its reference; same results).
         """
+        if not len(decision.refine) and not len(decision.merge):
+            return 0, 0
+        done = hierarchy.carry_out(decision.refine, decision.merge, time,
+                                   decision.merge_energy, decision.merge_kinetic,
+                                   decision.merge_bound, log)
+        if done is not None:
+            return done
         moved: set[int] = set()          # particles whose mass or velocity changed
         changed: set = set()             # edges whose triangles were replaced
         splits = []

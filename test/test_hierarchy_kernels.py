@@ -1,0 +1,211 @@
+"""The compiled split/merge kernels equal the Python reference bit for bit.
+
+Two hierarchies built alike are driven through the same random operations,
+one with the kernels (:mod:`cloth_lod_ros.sim.hierarchy_kernels`) and one with
+the reference methods of :class:`~cloth_lod_ros.sim.hierarchy.Hierarchy48`;
+after every operation all pool arrays, the free lists (the order new ids come
+in), the edge index, the midpoint map, ``version`` and the logs must be equal,
+and an invalid operation must raise the same :class:`MeshError` on both.
+Small bases start with small pools, so the runs grow them and reuse freed
+slots; the 2×1 and 2×2 bases have border diamonds.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cloth_lod_ros.sim import hierarchy_kernels, kernels
+from cloth_lod_ros.sim.hierarchy import Hierarchy48, Merge, Split
+from cloth_lod_ros.sim.lod import LodDecision, LodPolicy
+from cloth_lod_ros.sim.merge_energy import merge_kinetic_change
+from cloth_lod_ros.sim.mesh48 import MeshError, base_mesh
+
+pytestmark = pytest.mark.skipif(not kernels.available, reason="numba not installed")
+
+POOL_ARRAYS = ("uv", "x", "v", "mass_units", "vertex_active", "vertex_edge", "vertex_parents",
+               "tri", "level", "parent", "children", "tri_active", "birth")
+BASES = ((1.0, 1.0, 1, 1), (2.0, 1.0, 2, 1), (1.0, 1.0, 2, 2))
+
+
+@pytest.fixture(autouse=True)
+def _restore_kernels():
+    previous = kernels.enabled()
+    yield
+    kernels.use(previous)
+
+
+def _pair(base_index: int, max_level: int, seed: int) -> tuple[Hierarchy48, Hierarchy48]:
+    """(reference, compiled) hierarchies with the same random state."""
+    base = base_mesh(*BASES[base_index])
+    rng = np.random.default_rng(seed)
+    positions = np.column_stack([base.uv, 0.05 * rng.standard_normal(base.vertex_count)])
+    made = []
+    for _ in range(2):
+        h = Hierarchy48(base, positions, 0.3, max_level)
+        h.v[:h.vertex_end] = np.random.default_rng(seed).standard_normal((h.vertex_end, 3))
+        made.append(h)
+    return made[0], made[1]
+
+
+def _assert_same(reference: Hierarchy48, compiled: Hierarchy48) -> None:
+    for name in POOL_ARRAYS:
+        a, b = getattr(reference, name), getattr(compiled, name)
+        assert a.dtype == b.dtype and a.shape == b.shape, name
+        assert a.tobytes() == b.tobytes(), name
+    assert (reference.vertex_end, reference.tri_end, reference.version) == (
+        compiled.vertex_end, compiled.tri_end, compiled.version)
+    assert reference._free_vertices == compiled._free_vertices
+    assert reference._free_triangles == compiled._free_triangles
+    assert list(reference.midpoint.items()) == list(compiled.midpoint.items())
+    assert reference._edges == compiled._edges
+
+
+def _both(reference, compiled, action):
+    """Run ``action(h)`` on each with its kernels; the results or errors must agree."""
+    outcomes = []
+    for h, use_kernels in ((reference, False), (compiled, True)):
+        kernels.use(use_kernels)
+        try:
+            outcomes.append(("ok", action(h)))
+        except (MeshError, IndexError) as exc:      # IndexError: an id outside the pool
+            outcomes.append((type(exc).__name__, str(exc)))
+    kernels.use(True)
+    assert outcomes[0] == outcomes[1]
+    _assert_same(reference, compiled)
+    return outcomes[0]
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(base_index=st.integers(0, 2), max_level=st.integers(2, 7), seed=st.integers(0, 2**31))
+def test_random_operations_match_the_reference(base_index, max_level, seed):
+    reference, compiled = _pair(base_index, max_level, seed)
+    rng = np.random.default_rng(seed)
+    for step in range(80):
+        time = 0.01 * step
+        roll = rng.random()
+        if roll < 0.45:                                   # refine, forcing splits
+            tids = reference.active_triangles()
+            t = int(tids[rng.integers(len(tids))]) if rng.random() < 0.9 else int(
+                rng.integers(len(reference.tri)))       # sometimes an inactive one
+            _both(reference, compiled, lambda h: h.refine(t, time))
+        elif roll < 0.75 and reference.mergeable_edges():  # a valid merge, m moving
+            edges = reference.mergeable_edges()
+            edge = edges[rng.integers(len(edges))]
+            kick = rng.standard_normal(3)
+            for h in (reference, compiled):
+                h.v[h.midpoint[edge]] += kick
+            _both(reference, compiled, lambda h: h.apply(Merge(edge), time))
+        elif roll < 0.85:                                 # a direct split, maybe invalid
+            tids = reference.active_triangles()
+            edge = reference.hypotenuse(int(tids[rng.integers(len(tids))]))
+            if rng.random() < 0.3:
+                edge = (edge[0], int(rng.integers(reference.vertex_end)))
+            _both(reference, compiled, lambda h: h.apply(Split(edge), time))
+        else:                                             # merges that must fail
+            split = list(reference.midpoint)
+            edge = (split[rng.integers(len(split))] if split and rng.random() < 0.7
+                    else (0, int(rng.integers(1, reference.vertex_end))))
+            if edge not in reference.mergeable_edges():
+                _both(reference, compiled, lambda h: h.apply(Merge(edge), time))
+    compiled.check()
+
+
+def _random_decision(h: Hierarchy48, rng, with_energy: bool) -> LodDecision:
+    tids = h.active_triangles()
+    refine = rng.choice(tids, size=min(len(tids), int(rng.integers(0, 6))), replace=False)
+    refine = [int(t) for t in refine] + [int(rng.integers(len(h.tri)))]
+    merge = list(h.mergeable_edges())
+    rng.shuffle(merge)
+    merge = merge[:int(rng.integers(0, len(merge) + 1))]
+    if merge and rng.random() < 0.3:
+        merge.append(merge[0][::-1])                      # unsorted: never merged
+    merge.append((0, h.vertex_end - 1))                   # (usually) not split
+    k = len(merge)
+    if not with_energy:
+        return LodDecision(refine, merge)
+    kinetic = 1e-3 * rng.standard_normal(k)
+    energy = kinetic + 1e-3 * rng.standard_normal(k)
+    bound = energy + 1e-3 * rng.random(k) * (rng.random(k) < 0.7)
+    return LodDecision(refine, merge, energy, kinetic, bound)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(base_index=st.integers(0, 2), max_level=st.integers(3, 7), seed=st.integers(0, 2**31),
+       with_energy=st.booleans())
+def test_decisions_match_lod_policy_apply(base_index, max_level, seed, with_energy):
+    """Whole decisions: forced splits, merges re-tested or skipped after them."""
+    reference, compiled = _pair(base_index, max_level, seed)
+    rng = np.random.default_rng(seed)
+    for step in range(12):
+        decision = _random_decision(reference, rng, with_energy)
+        kick = 0.1 * rng.standard_normal((reference.vertex_end, 3))
+        for h in (reference, compiled):
+            h.v[:h.vertex_end] += kick
+        logs = ([], [])
+
+        def carry_out(h):
+            log = logs[0] if h is reference else logs[1]
+            return LodPolicy.apply(h, decision, 0.05 * step, log)
+
+        _both(reference, compiled, carry_out)
+        assert logs[0] == logs[1]
+    compiled.check()
+
+
+def test_pool_growth_and_free_slot_reuse():
+    """Refining a one-block mesh deep grows both pools several times; merging
+    everything back and refining again reuses the freed slots in order."""
+    reference, compiled = _pair(0, 7, 1)
+    for h, use_kernels in ((reference, False), (compiled, True)):
+        kernels.use(use_kernels)
+        h.refine_uniform(4, 0.5)
+        assert len(h.uv) > 16 and len(h.tri) > 16
+        while h.mergeable_edges():
+            for edge in h.mergeable_edges():
+                h.apply(Merge(edge), 1.0)
+        assert h._free_vertices and h._free_triangles
+        h.refine_uniform(3, 2.0)
+    _assert_same(reference, compiled)
+
+
+def test_kinetic_retest_equals_merge_kinetic_change():
+    """The kernel's kinetic re-test is merge_energy.merge_kinetic_change, bitwise."""
+    rng = np.random.default_rng(5)
+    for _ in range(2000):
+        units = rng.random(3) * 2.0 ** rng.integers(-6, 3, 3)
+        velocities = rng.standard_normal((3, 3)) * 10.0 ** rng.integers(-4, 2, (3, 1))
+        unit_mass = float(rng.random())
+        expected = merge_kinetic_change((units * unit_mass)[None], velocities[None])[0]
+        got = hierarchy_kernels._kinetic_change(units, velocities, unit_mass, 0, 1, 2)
+        assert np.float64(got).tobytes() == np.float64(expected).tobytes()
+
+
+def test_compiled_hierarchy_copies_and_answers_queries():
+    reference, compiled = _pair(2, 6, 3)
+    _both(reference, compiled, lambda h: h.refine_uniform(2))
+    kernels.use(True)
+    compiled.refine(int(compiled.active_triangles()[3]))
+    kernels.use(False)
+    reference.refine(int(reference.active_triangles()[3]))
+    kernels.use(True)
+    assert not compiled._python_current                   # answered from the kernels' index
+    for edge in list(reference._edges) + [(0, compiled.vertex_end - 1)]:
+        assert compiled.edge_triangles(edge[::-1]) == reference.edge_triangles(edge)
+    copied = copy.deepcopy(compiled)                      # typed dicts do not copy
+    _assert_same(reference, copied)
+    assert copied.diamond == reference.diamond
+
+
+def test_ids_the_kernels_cannot_take_go_to_the_reference():
+    """A refinement id outside the pool (negative ids index from the end in
+    numpy) or a huge vertex id: the kernels do nothing and the reference runs."""
+    reference, compiled = _pair(2, 5, 4)
+    for refine, merge in (([-1, 3], []), ([len(reference.tri) + 5], [(0, 2**40)]),
+                          ([2], [(-1, 4)])):
+        decision = LodDecision(refine, merge)
+        _both(reference, compiled, lambda h: LodPolicy.apply(h, decision, 0.5, []))
