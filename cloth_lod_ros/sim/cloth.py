@@ -33,8 +33,8 @@ import numpy as np
 from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
 from .contact import nearest_surface
 from .forces import Elements, air_power
-from . import (hierarchy_kernels, kernels, lod_kernels, projection_kernels, self_kernels,
-               topology_kernels)
+from . import (hierarchy_kernels, kernels, lod_kernels, multigrid_kernels, projection_kernels,
+               self_kernels, topology_kernels)
 from .topology_kernels import precompute   # compiled when numba is there
 from .kernels import elastic_energies   # compiled when numba is there
 from .grasps import Grasp
@@ -113,6 +113,7 @@ def warm_up_compiled_code() -> float:
         self_kernels.warm_up()      # the broad phase's kernels a folded cloth needs
         projection_kernels.warm_up()  # sliding contacts' projection, if the tiny step had none
         lod_kernels.warm_up()       # the LOD criterion's, whether or not the tiny step merged
+        multigrid_kernels.warm_up()  # the V-cycle a large cloth's solves use
     except Exception as exc:    # never a reason to refuse the real scene: it only costs time
         log.warning("compiled kernels not warmed up (%s); the first step loads them", exc)
     return _time.perf_counter() - start

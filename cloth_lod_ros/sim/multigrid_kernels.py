@@ -28,15 +28,14 @@ import scipy.sparse.linalg as spla
 from . import kernels as _kernels
 
 __all__ = ["BlockVCycle", "BlockOperator", "block_arrays", "inverse_blocks",
-           "inverse_diagonal_blocks"]
+           "inverse_diagonal_blocks", "warm_up"]
 
 _jit = _kernels._jit
 
 
 @_jit
 def _scaled_residual(indptr, indices, data, inverse_diagonal, b, x, out):
-    """``out = D⁻¹ (b − A x)`` (``x`` None-free: pass zeros for ``D⁻¹ b``);
-    all ``(n, 3)``."""
+    """``out = D⁻¹ (b − A x)``, all ``(n, 3)``."""
     n = len(indptr) - 1
     for r in range(n):
         y0, y1, y2 = b[r, 0], b[r, 1], b[r, 2]
@@ -93,19 +92,33 @@ def _chebyshev(indptr, indices, data, inverse_diagonal, b, x, largest, lower, de
         for a in range(3):
             d[i, a] = r[i, a] / centre
             x[i, a] += d[i, a]
-    q = np.empty((n, 3))
-    zero = np.zeros((n, 3))
+    d_next = np.empty((n, 3))
     for _ in range(degree - 1):
-        # r −= D⁻¹ A d, as D⁻¹ (0 − A d) added.
-        _scaled_residual(indptr, indices, data, inverse_diagonal, zero, d, q)
         rho_next = 1.0 / (2.0 * sigma - rho)
-        keep, push = rho_next * rho, 2.0 * rho_next / half_width
-        for i in range(n):
-            for a in range(3):
-                r[i, a] += q[i, a]
-                d[i, a] = keep * d[i, a] + push * r[i, a]
-                x[i, a] += d[i, a]
+        _sweep(indptr, indices, data, inverse_diagonal, r, d, d_next, x,
+               rho_next * rho, 2.0 * rho_next / half_width)
+        d, d_next = d_next, d
         rho = rho_next
+
+
+@_jit
+def _sweep(indptr, indices, data, inverse_diagonal, r, d, d_next, x, keep, push):
+    """One Chebyshev sweep in one pass over A: ``r −= D⁻¹ A d``, then
+    ``d' = keep · d + push · r`` and ``x += d'`` row by row (``d'`` into
+    ``d_next``: the product needs the old ``d`` of every neighbour)."""
+    for row in range(len(indptr) - 1):
+        y0 = y1 = y2 = 0.0
+        for p in range(indptr[row], indptr[row + 1]):
+            c = indices[p]
+            x0, x1, x2 = d[c, 0], d[c, 1], d[c, 2]
+            y0 += data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
+            y1 += data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
+            y2 += data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
+        for a in range(3):
+            r[row, a] -= (inverse_diagonal[row, a, 0] * y0 + inverse_diagonal[row, a, 1] * y1
+                          + inverse_diagonal[row, a, 2] * y2)
+            d_next[row, a] = keep * d[row, a] + push * r[row, a]
+            x[row, a] += d_next[row, a]
 
 
 @_jit
@@ -368,3 +381,16 @@ class BlockOperator:
         out = np.empty((self.shape[0] // 3, 3))
         _product(*self.arrays, np.ascontiguousarray(x, dtype=np.float64).reshape(-1, 3), out)
         return out.ravel()
+
+
+def warm_up() -> None:
+    """Compile or load these kernels on a two-particle system with one coarse
+    node, so that a large cloth's first multigrid solve does not pay for it."""
+    if not _kernels.enabled():
+        return
+    blocks = np.stack([np.eye(3) * 4.0, -np.eye(3), -np.eye(3), np.eye(3) * 4.0])
+    fine = (np.array([0, 2, 4], np.int64), np.array([0, 1, 0, 1], np.int64), blocks)
+    prolongation = sp.csr_matrix(np.array([[1.0], [0.5]]))
+    cycle = BlockVCycle(fine, inverse_diagonal_blocks(*fine), [prolongation])
+    cycle(np.ones(6))
+    BlockOperator(fine) @ np.ones(6)
