@@ -25,18 +25,13 @@ from cloth_lod_ros.sim.lod import LodDecision, LodPolicy
 from cloth_lod_ros.sim.merge_energy import merge_kinetic_change
 from cloth_lod_ros.sim.mesh48 import MeshError, base_mesh
 
-pytestmark = pytest.mark.skipif(not kernels.available, reason="numba not installed")
+pytestmark = [pytest.mark.skipif(not kernels.available, reason="numba not installed"),
+              pytest.mark.usefixtures("kernels_restored")]
 
 POOL_ARRAYS = ("uv", "x", "v", "mass_units", "vertex_active", "vertex_edge", "vertex_parents",
                "tri", "level", "parent", "children", "tri_active", "birth")
 BASES = ((1.0, 1.0, 1, 1), (2.0, 1.0, 2, 1), (1.0, 1.0, 2, 2))
 
-
-@pytest.fixture(autouse=True)
-def _restore_kernels():
-    previous = kernels.enabled()
-    yield
-    kernels.use(previous)
 
 
 def _pair(base_index: int, max_level: int, seed: int) -> tuple[Hierarchy48, Hierarchy48]:

@@ -18,14 +18,9 @@ from cloth_lod_ros.sim.merge_energy import merge_energy_change
 
 pytestmark = [pytest.mark.skipif(not kernels.available, reason="numba not installed"),
               # degenerate inputs on purpose: the reference warns of its 0/0
-              pytest.mark.filterwarnings("ignore::RuntimeWarning")]
+              pytest.mark.filterwarnings("ignore::RuntimeWarning"),
+              pytest.mark.usefixtures("kernels_restored")]
 
-
-@pytest.fixture(autouse=True)
-def _restore_kernels():
-    previous = kernels.enabled()
-    yield
-    kernels.use(previous)
 
 
 def _same(a, b):

@@ -9,14 +9,9 @@ from cloth_lod_ros.sim import kernels, linear, multigrid, multigrid_kernels as m
 from cloth_lod_ros.sim import ClothSim
 from cloth_lod_ros.sim.config import load_scene
 
-pytestmark = pytest.mark.skipif(not kernels.available, reason="numba not installed")
+pytestmark = [pytest.mark.skipif(not kernels.available, reason="numba not installed"),
+              pytest.mark.usefixtures("kernels_restored")]
 
-
-@pytest.fixture(autouse=True)
-def _restore_kernels():
-    previous = kernels.enabled()
-    yield
-    kernels.use(previous)
 
 
 def _captured_system(overrides):

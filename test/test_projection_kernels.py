@@ -9,14 +9,9 @@ from hypothesis import given, settings, strategies as st
 from cloth_lod_ros.sim import kernels, linear, projection_kernels as pk, solvers
 from cloth_lod_ros.sim.linear import Constraints
 
-pytestmark = pytest.mark.skipif(not kernels.available, reason="numba not installed")
+pytestmark = [pytest.mark.skipif(not kernels.available, reason="numba not installed"),
+              pytest.mark.usefixtures("kernels_restored")]
 
-
-@pytest.fixture(autouse=True)
-def _restore_kernels():
-    previous = kernels.enabled()
-    yield
-    kernels.use(previous)
 
 
 def _system(seed, n=12, density=0.3):

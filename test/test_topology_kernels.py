@@ -8,14 +8,9 @@ from cloth_lod_ros.sim import forces, mesh48
 from cloth_lod_ros.sim.config import load_scene
 from cloth_lod_ros.sim.mesh48 import MeshError, RestMesh, base_mesh, refine_uniform
 
-pytestmark = pytest.mark.skipif(not kernels.available, reason="numba not installed")
+pytestmark = [pytest.mark.skipif(not kernels.available, reason="numba not installed"),
+              pytest.mark.usefixtures("kernels_restored")]
 
-
-@pytest.fixture(autouse=True)
-def _restore_kernels():
-    previous = kernels.enabled()
-    yield
-    kernels.use(previous)
 
 
 def _fresh(mesh):

@@ -26,6 +26,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import kernels as _kernels
+from .multigrid import largest_eigenvalue
 
 __all__ = ["BlockVCycle", "BlockOperator", "block_arrays", "inverse_blocks",
            "inverse_diagonal_blocks", "warm_up"]
@@ -34,35 +35,48 @@ _jit = _kernels._jit
 
 
 @_jit
+def _row_times(indptr, indices, data, x, row):
+    """``(A x)_row`` as three sums, ``x`` ``(n, 3)``."""
+    y0 = y1 = y2 = 0.0
+    for p in range(indptr[row], indptr[row + 1]):
+        c = indices[p]
+        x0, x1, x2 = x[c, 0], x[c, 1], x[c, 2]
+        y0 += data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
+        y1 += data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
+        y2 += data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
+    return y0, y1, y2
+
+
+@_jit
+def _scaled(inverse_diagonal, row, y0, y1, y2, out):
+    """``out[row] = D⁻¹_row y``."""
+    for a in range(3):
+        out[row, a] = (inverse_diagonal[row, a, 0] * y0 + inverse_diagonal[row, a, 1] * y1
+                       + inverse_diagonal[row, a, 2] * y2)
+
+
+@_jit
 def _scaled_residual(indptr, indices, data, inverse_diagonal, b, x, out):
     """``out = D⁻¹ (b − A x)``, all ``(n, 3)``."""
-    n = len(indptr) - 1
-    for r in range(n):
-        y0, y1, y2 = b[r, 0], b[r, 1], b[r, 2]
-        for p in range(indptr[r], indptr[r + 1]):
-            c = indices[p]
-            x0, x1, x2 = x[c, 0], x[c, 1], x[c, 2]
-            y0 -= data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
-            y1 -= data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
-            y2 -= data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
-        for a in range(3):
-            out[r, a] = (inverse_diagonal[r, a, 0] * y0 + inverse_diagonal[r, a, 1] * y1
-                         + inverse_diagonal[r, a, 2] * y2)
+    for row in range(len(indptr) - 1):
+        y0, y1, y2 = _row_times(indptr, indices, data, x, row)
+        _scaled(inverse_diagonal, row, b[row, 0] - y0, b[row, 1] - y1, b[row, 2] - y2, out)
+
+
+@_jit
+def _scaled_product(indptr, indices, data, inverse_diagonal, x, out):
+    """``out = D⁻¹ A x``, all ``(n, 3)``."""
+    for row in range(len(indptr) - 1):
+        y0, y1, y2 = _row_times(indptr, indices, data, x, row)
+        _scaled(inverse_diagonal, row, y0, y1, y2, out)
 
 
 @_jit
 def _residual(indptr, indices, data, b, x, out):
     """``out = b − A x`` ``(n, 3)``."""
-    n = len(indptr) - 1
-    for r in range(n):
-        y0, y1, y2 = b[r, 0], b[r, 1], b[r, 2]
-        for p in range(indptr[r], indptr[r + 1]):
-            c = indices[p]
-            x0, x1, x2 = x[c, 0], x[c, 1], x[c, 2]
-            y0 -= data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
-            y1 -= data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
-            y2 -= data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
-        out[r, 0], out[r, 1], out[r, 2] = y0, y1, y2
+    for row in range(len(indptr) - 1):
+        y0, y1, y2 = _row_times(indptr, indices, data, x, row)
+        out[row, 0], out[row, 1], out[row, 2] = b[row, 0] - y0, b[row, 1] - y1, b[row, 2] - y2
 
 
 @_jit
@@ -82,10 +96,8 @@ def _chebyshev(indptr, indices, data, inverse_diagonal, b, x, largest, lower, de
     if from_zero:
         # D⁻¹ (b − A·0): no pass over A.
         for i in range(n):
-            for a in range(3):
-                r[i, a] = (inverse_diagonal[i, a, 0] * b[i, 0] + inverse_diagonal[i, a, 1] * b[i, 1]
-                           + inverse_diagonal[i, a, 2] * b[i, 2])
-                x[i, a] = 0.0
+            _scaled(inverse_diagonal, i, b[i, 0], b[i, 1], b[i, 2], r)
+            x[i, 0] = x[i, 1] = x[i, 2] = 0.0
     else:
         _scaled_residual(indptr, indices, data, inverse_diagonal, b, x, r)
     for i in range(n):
@@ -107,13 +119,7 @@ def _sweep(indptr, indices, data, inverse_diagonal, r, d, d_next, x, keep, push)
     ``d' = keep · d + push · r`` and ``x += d'`` row by row (``d'`` into
     ``d_next``: the product needs the old ``d`` of every neighbour)."""
     for row in range(len(indptr) - 1):
-        y0 = y1 = y2 = 0.0
-        for p in range(indptr[row], indptr[row + 1]):
-            c = indices[p]
-            x0, x1, x2 = d[c, 0], d[c, 1], d[c, 2]
-            y0 += data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
-            y1 += data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
-            y2 += data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
+        y0, y1, y2 = _row_times(indptr, indices, data, d, row)
         for a in range(3):
             r[row, a] -= (inverse_diagonal[row, a, 0] * y0 + inverse_diagonal[row, a, 1] * y1
                           + inverse_diagonal[row, a, 2] * y2)
@@ -309,18 +315,13 @@ class BlockVCycle:
         indptr, indices, data = arrays
         bound = float(_row_sum_bound(indptr, indices, data, inverse_diagonal))
         n = len(indptr) - 1
-        x = np.random.default_rng(0).standard_normal(3 * n).reshape(n, 3)
-        zero = np.zeros((n, 3))
-        y = np.empty((n, 3))
-        estimate = bound
-        for _ in range(self.POWER_ITERATIONS):
-            _scaled_residual(indptr, indices, data, inverse_diagonal, zero, x, y)   # −D⁻¹A x
-            norm = float(np.linalg.norm(y))
-            if not np.isfinite(norm) or norm == 0.0:
-                break
-            estimate, x = norm / float(np.linalg.norm(x)), y / norm
-        largest = min(1.2 * estimate, bound)
-        return largest if np.isfinite(largest) and largest > 0.0 else 1.0
+        out = np.empty((n, 3))
+
+        def scaled_product(x):                      # D⁻¹ A x on flat vectors
+            _scaled_product(indptr, indices, data, inverse_diagonal, x.reshape(n, 3), out)
+            return out.ravel().copy()
+
+        return largest_eigenvalue(scaled_product, 3 * n, bound, self.POWER_ITERATIONS)
 
     def update_fine(self, fine, fine_inverse_diagonal: np.ndarray) -> None:
         """Smooth with a new fine operator, keeping the coarse ones (as the reference)."""
@@ -356,15 +357,8 @@ class BlockVCycle:
 @_jit
 def _product(indptr, indices, data, x, out):
     """``out = A x`` ``(n, 3)``."""
-    for r in range(len(indptr) - 1):
-        y0 = y1 = y2 = 0.0
-        for p in range(indptr[r], indptr[r + 1]):
-            c = indices[p]
-            x0, x1, x2 = x[c, 0], x[c, 1], x[c, 2]
-            y0 += data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
-            y1 += data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
-            y2 += data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
-        out[r, 0], out[r, 1], out[r, 2] = y0, y1, y2
+    for row in range(len(indptr) - 1):
+        out[row, 0], out[row, 1], out[row, 2] = _row_times(indptr, indices, data, x, row)
 
 
 class BlockOperator:
