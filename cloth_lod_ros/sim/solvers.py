@@ -59,9 +59,10 @@ AUTO_DIRECT_LIMIT = 700
 #: 0.83x; with the 700 limit auto switched between them and made 0.85x).
 AUTO_DIRECT_LIMIT_GRADED = 1200
 #: The same limits for the block LDLᵀ and CHOLMOD, ~2.5x faster than QDLDL.
-#: ``bench --solvers`` (ms per step, sdirk2): uniform L6 (1,089 particles)
-#: block LDLT 25.2, multigrid 52.8; L7 (2,113) 74.6 against 127.1; L8 (4,225)
-#: 205 against 210, a tie - so up to L7 on uniform meshes, further on graded ones.
+#: ``bench --solvers`` (ms per step, sdirk2, compiled V-cycle): uniform L6
+#: (1,089 particles) block LDLT 25.1, multigrid 33.6; L7 (2,113) 72.7 against
+#: 66.0, a tie; L8 (4,225) 202 against 99 - so up to L7 on uniform meshes,
+#: further on graded ones (default scene: 6.0 against 13.5).
 AUTO_FAST_DIRECT_LIMIT = 2500
 AUTO_FAST_DIRECT_LIMIT_GRADED = 5000
 
