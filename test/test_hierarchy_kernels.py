@@ -169,14 +169,16 @@ def test_pool_growth_and_free_slot_reuse():
 
 
 def test_kinetic_retest_equals_merge_kinetic_change():
-    """The kernel's kinetic re-test is merge_energy.merge_kinetic_change, bitwise."""
+    """The kinetic change the kernels use (the hierarchy's re-test, the LOD
+    criterion's merge energies) is merge_energy.merge_kinetic_change, bitwise."""
     rng = np.random.default_rng(5)
     for _ in range(2000):
         units = rng.random(3) * 2.0 ** rng.integers(-6, 3, 3)
         velocities = rng.standard_normal((3, 3)) * 10.0 ** rng.integers(-4, 2, (3, 1))
         unit_mass = float(rng.random())
         expected = merge_kinetic_change((units * unit_mass)[None], velocities[None])[0]
-        got = hierarchy_kernels._kinetic_change(units, velocities, unit_mass, 0, 1, 2)
+        masses = units * unit_mass
+        got = hierarchy_kernels.merge_kinetic(velocities, 0, 1, 2, *masses)
         assert np.float64(got).tobytes() == np.float64(expected).tobytes()
 
 

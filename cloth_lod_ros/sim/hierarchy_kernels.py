@@ -326,22 +326,21 @@ def _squared_norm(a0, a1, a2):
 
 
 @_jit
-def _kinetic_change(mass_units, v, unit_mass, m, left, right):
-    """merge_energy.merge_kinetic_change for one merge, J, in its operation order."""
-    m_mid, m_l, m_r = (mass_units[m] * unit_mass, mass_units[left] * unit_mass,
-                       mass_units[right] * unit_mass)
-    ends = m_l + m_r + m_mid
-    change = np.empty(3)
-    for k in range(3):
-        change[k] = m_mid * (v[m, k] - 0.5 * (v[left, k] + v[right, k])) / ends
-    before = (m_l * _squared_norm(v[left, 0], v[left, 1], v[left, 2])
-              + m_r * _squared_norm(v[right, 0], v[right, 1], v[right, 2])
+def merge_kinetic(v, m, left, right, m_mid, m_left, m_right):
+    """``merge_energy.merge_kinetic_change`` of one merge, J, bitwise: ``v`` ``(n, 3)``
+    m/s, ``m`` the midpoint, ``left``/``right`` the edge ends, masses in kg (the
+    LOD criterion's merge energies use it too, lod_kernels)."""
+    ends = m_left + m_right + m_mid
+    c0 = m_mid * (v[m, 0] - 0.5 * (v[left, 0] + v[right, 0])) / ends
+    c1 = m_mid * (v[m, 1] - 0.5 * (v[left, 1] + v[right, 1])) / ends
+    c2 = m_mid * (v[m, 2] - 0.5 * (v[left, 2] + v[right, 2])) / ends
+    before = (m_left * _squared_norm(v[left, 0], v[left, 1], v[left, 2])
+              + m_right * _squared_norm(v[right, 0], v[right, 1], v[right, 2])
               + m_mid * _squared_norm(v[m, 0], v[m, 1], v[m, 2]))
-    after = ((m_l + 0.5 * m_mid) * _squared_norm(v[left, 0] + change[0], v[left, 1] + change[1],
-                                                 v[left, 2] + change[2])
-             + (m_r + 0.5 * m_mid) * _squared_norm(v[right, 0] + change[0],
-                                                   v[right, 1] + change[1],
-                                                   v[right, 2] + change[2]))
+    after = ((m_left + 0.5 * m_mid) * _squared_norm(v[left, 0] + c0, v[left, 1] + c1,
+                                                    v[left, 2] + c2)
+             + (m_right + 0.5 * m_mid) * _squared_norm(v[right, 0] + c0, v[right, 1] + c1,
+                                                       v[right, 2] + c2))
     return 0.5 * (after - before)
 
 
@@ -414,7 +413,8 @@ def _execute(vp, tp, counters, edges, midpoints, direct, refine, merge, energy, 
             continue
         m = midpoints[key]
         if check_energy and (a in moved or b in moved):
-            again = _kinetic_change(vp[3], vp[2], unit_mass, m, a, b)
+            again = merge_kinetic(vp[2], m, a, b, vp[3][m] * unit_mass, vp[3][a] * unit_mass,
+                                  vp[3][b] * unit_mass)
             if energy[i] - kinetic[i] + again > bound[i]:
                 continue
         tri, children, active = tp[0], tp[3], tp[4]

@@ -152,7 +152,8 @@ class SparsePattern:
         """Per element kind, ``(e, k, k)`` int64: the flat BSR data index of entry
         ``(a, b) = (0, 0)`` of each vertex pair's block (entry ``(a, b)`` is 3a + b
         further).  What compiled kernels add their blocks through: 1/9 of the
-        slots to read (cached; derived from the entry slots)."""
+        slots to read (the compiled build writes only these; the numpy one
+        writes the entry slots, and these are derived from them, cached)."""
         if self._retired:
             raise RuntimeError("this sparsity pattern was retired")
         if self._block_slots is None:
@@ -234,7 +235,8 @@ class PatternStorage:
     """Arrays that the successive sparsity patterns of one solver reuse.
 
     An adaptive mesh builds a pattern at most topology changes.  Its two large
-    arrays, the entry slots (~1.5 MB at 400 particles) and the key-rank
+    arrays, the slots (block slots, ~170 kB at 400 particles, from the
+    compiled build; entry slots, 9x that, from the numpy one) and the key-rank
     scratch table (8 bytes per possible vertex pair), were fresh allocations
     each time: in a running simulation fresh pages of that size cost a page
     fault each on first write, about a third of a pattern build.  The slots

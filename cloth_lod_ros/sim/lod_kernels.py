@@ -39,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import kernels as _kernels
+from .hierarchy_kernels import merge_kinetic
 
 __all__ = ["criterion", "refine_order", "split_candidates", "mergeable",
            "merge_energies", "warm_up"]
@@ -285,7 +286,6 @@ def _merge_energies(vertices, vertex_ids, triangle_ids, vertex_edge, vertex_pare
     ends = np.empty((k_count, 2), dtype=np.int64)
     corners = np.empty((k_count, 2, 3), dtype=np.int64)   # compact parent corners
     parent_area = np.zeros((k_count, 2))
-    change = np.empty(3)             # the ends' velocity change of one merge, m/s
     owner = np.full(n, -1, dtype=np.int64)
     for i in range(k_count):
         m = vertices[i]
@@ -381,21 +381,10 @@ def _merge_energies(vertices, vertex_ids, triangle_ids, vertex_edge, vertex_pare
 
         # Kinetic (merge_kinetic_change) and the offset of m from the chord.
         mi, left, right = mid[i], ends[i, 0], ends[i, 1]
-        m_mid, m_l, m_r = masses[mi], masses[left], masses[right]
-        mass_ends = m_l + m_r + m_mid
         for d in range(3):
-            change[d] = m_mid * (v[mi, d] - 0.5 * (v[left, d] + v[right, d])) / mass_ends
             offset[i, d] = x[mi, d] - 0.5 * (x[left, d] + x[right, d])
-        sq_l = _dot3(v[left, 0], v[left, 1], v[left, 2], v[left, 0], v[left, 1], v[left, 2])
-        sq_r = _dot3(v[right, 0], v[right, 1], v[right, 2],
-                     v[right, 0], v[right, 1], v[right, 2])
-        sq_m = _dot3(v[mi, 0], v[mi, 1], v[mi, 2], v[mi, 0], v[mi, 1], v[mi, 2])
-        before_k = m_l * sq_l + m_r * sq_r + m_mid * sq_m
-        l0, l1, l2 = v[left, 0] + change[0], v[left, 1] + change[1], v[left, 2] + change[2]
-        r0, r1, r2 = v[right, 0] + change[0], v[right, 1] + change[1], v[right, 2] + change[2]
-        after_k = ((m_l + 0.5 * m_mid) * _dot3(l0, l1, l2, l0, l1, l2)
-                   + (m_r + 0.5 * m_mid) * _dot3(r0, r1, r2, r0, r1, r2))
-        kinetic[i] = 0.5 * (after_k - before_k)
+        kinetic[i] = merge_kinetic(v, mi, left, right, masses[mi], masses[left],
+                                   masses[right])
     return True
 
 

@@ -482,10 +482,6 @@ class Multigrid(LinearSolver):
                 or self._last > self.REBUILD_GROWTH * self._baseline + 2)
 
 
-def _inverse_blocks(blocks: np.ndarray) -> sp.csr_matrix:
-    return block_diagonal_matrix(np.linalg.inv(blocks))
-
-
 class Auto(LinearSolver):
     """Picks a backend per topology by size; :attr:`name` is what ran last."""
 
