@@ -15,7 +15,7 @@ from test_solvers import constraints_for, system
 block_ldl = pytest.importorskip("cloth_lod_ros.sim.block_ldl")
 
 
-def _factor(projected):
+def _factor(projected, held=None):
     n = projected.shape[0] // 3
     indptr, indices = projected.indptr.astype(np.int64), projected.indices.astype(np.int64)
     perm = particle_ordering(indptr, indices, n)
@@ -26,7 +26,8 @@ def _factor(projected):
     factor = np.empty((pointers[-1], 3, 3))
     inverse_diagonal = np.empty((n, 3, 3))
     failed = block_ldl.numeric(indptr, indices, np.ascontiguousarray(projected.data), perm,
-                               pinv, parent, pointers, rows, factor, inverse_diagonal)
+                               pinv, parent, pointers, rows, factor, inverse_diagonal,
+                               np.zeros(n, dtype=bool) if held is None else held)
     return failed, perm, pointers, rows, factor, inverse_diagonal
 
 
@@ -97,3 +98,35 @@ def test_a_singular_system_is_refused_with_a_linalg_error():
     backend.reset_topology(pattern, mesh.uv)
     with pytest.raises(np.linalg.LinAlgError, match="particle 3"):
         backend.solve(broken, rhs, Constraints.none(), None)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_held_particles_skipped_give_the_same_factor_bit_for_bit(seed):
+    """Rows and columns of held particles are zero in L: writing them as zeros
+    without their block updates changes no number of the factor."""
+    matrix, rhs, pattern, mesh = system(4, seed=seed)
+    n = mesh.vertex_count
+    rng = np.random.default_rng(seed)
+    held_ids = rng.choice(n, size=n // 4, replace=False)
+    sliding = rng.choice(np.setdiff1d(np.arange(n), held_ids), size=n // 8, replace=False)
+    nz = np.array([0.0, 0.0, 1.0])
+    constraints = Constraints(
+        np.concatenate([held_ids, sliding]),
+        np.concatenate([np.zeros((len(held_ids), 3, 3)),
+                        np.repeat((np.eye(3) - np.outer(nz, nz))[None], len(sliding), 0)]),
+        rng.normal(scale=0.01, size=(len(held_ids) + len(sliding), 3)))
+    projected, b, _ = project_system(matrix, rhs, constraints, pattern)
+    held = np.zeros(n, dtype=bool)
+    held[held_ids] = True
+    plain = _factor(projected)
+    skipped = _factor(projected, held)
+    assert plain[0] == skipped[0] == -1
+    for a, b_ in zip(plain[1:], skipped[1:]):
+        np.testing.assert_array_equal(a, b_)
+    # The backend finds the held particles itself, and its solve holds them.
+    backend = make_solver("block_ldl", 1e-8, 100)
+    backend.reset_topology(pattern, mesh.uv)
+    result = backend.solve(matrix, rhs, constraints, None)
+    assert result.converged
+    np.testing.assert_array_equal(result.dv[held_ids], constraints.prescribed[:len(held_ids)])
+    assert np.all(solvers._held_particles(matrix, rhs, constraints) == held)

@@ -74,7 +74,7 @@ def symbolic(indptr, indices, perm, pinv):
 
 @numba.njit(cache=True)
 def numeric(indptr, indices, data, perm, pinv, parent, column_pointers,
-            rows, factor, inverse_diagonal):
+            rows, factor, inverse_diagonal, held):
     """Numeric factorisation ``P A Pᵀ = L D Lᵀ``, written into the arrays given.
 
     Args:
@@ -82,6 +82,11 @@ def numeric(indptr, indices, data, perm, pinv, parent, column_pointers,
             only its numbers change between calls for one topology).
         perm, pinv, parent, column_pointers: the ordering and :func:`symbolic`'s
             output.
+        held: ``(n,)`` bool by particle: particles whose off-diagonal blocks
+            in ``A`` are all zero (held ones in a projected system: a pin, a
+            sticking contact).  Their rows and columns of ``L`` are zero, so
+            they are written as zeros without the block updates that would
+            compute them (the same numbers: the updates only add ``0 · L``).
         rows: ``(nnz_L,)`` int64, out: the block row of every stored block of ``L``.
         factor: ``(nnz_L, 3, 3)`` out: the blocks ``L(rows[p], j)`` of column j at
             ``column_pointers[j]:column_pointers[j + 1]``.
@@ -102,6 +107,7 @@ def numeric(indptr, indices, data, perm, pinv, parent, column_pointers,
         flag[k] = k
         row = perm[k]
         top = n
+        row_held = held[row]
         for p in range(indptr[row], indptr[row + 1]):
             i = pinv[indices[p]]
             if i == k:
@@ -127,6 +133,14 @@ def numeric(indptr, indices, data, perm, pinv, parent, column_pointers,
         for t in range(top, n):
             i = stack[t]
             y = work[i]
+            if row_held or held[perm[i]]:
+                # y_i is zero (row k or row i of L is): L(k, i) = 0, nothing to update.
+                q = column_pointers[i] + filled[i]
+                rows[q] = k
+                factor[q, :, :] = 0.0
+                filled[i] += 1
+                y[:, :] = 0.0
+                continue
             y00, y01, y02 = y[0, 0], y[0, 1], y[0, 2]
             y10, y11, y12 = y[1, 0], y[1, 1], y[1, 2]
             y20, y21, y22 = y[2, 0], y[2, 1], y[2, 2]

@@ -284,7 +284,8 @@ class BlockLdl(LinearSolver):
             self._factored.forget()
             failed = kernels.numeric(indptr, indices, np.ascontiguousarray(data), perm, pinv,
                                      parent, pointers, self._rows, self._factor,
-                                     self._inverse_diagonal)
+                                     self._inverse_diagonal,
+                                     _held_particles(matrix, rhs, constraints))
             if failed >= 0:
                 raise np.linalg.LinAlgError(f"block LDLT factorisation failed: singular "
                                             f"pivot block at particle {int(perm[failed])}")
@@ -292,6 +293,22 @@ class BlockLdl(LinearSolver):
         y = kernels.solve(perm, pointers, self._rows, self._factor, self._inverse_diagonal,
                           np.ascontiguousarray(b))
         return _factorised_result(matrix, rhs, constraints, z, y, self.tolerance)
+
+
+def _held_particles(matrix, rhs, constraints) -> np.ndarray:
+    """``(n,)`` bool: the particles the constraints hold in every direction
+    (their projected rows and columns are zero off the diagonal)."""
+    filters = _projection.particle_filters(matrix, rhs, constraints)
+    if filters is not None:
+        return filters[0] == _projection.HELD
+    # Without the kernels: held where every entry of the particle holds it all
+    # (a particle listed twice may end up held or not; only the surely held skip).
+    n = rhs.shape[0]
+    listed = np.zeros(n, dtype=bool)
+    partly = np.zeros(n, dtype=bool)
+    listed[constraints.indices] = True
+    partly[constraints.indices[np.any(constraints.projectors != 0.0, axis=(1, 2))]] = True
+    return listed & ~partly
 
 
 def factorisation_count() -> int:
