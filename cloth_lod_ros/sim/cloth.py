@@ -46,6 +46,7 @@ from .lod import LodPolicy
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
 from .self_contact import SelfCollision
+from .solvers import available_methods
 from .state import ClothState, SimulationError, StepStats
 from .timestepping import TimeStepper
 
@@ -114,6 +115,9 @@ def warm_up_compiled_code() -> float:
         projection_kernels.warm_up()  # sliding contacts' projection, if the tiny step had none
         lod_kernels.warm_up()       # the LOD criterion's, whether or not the tiny step merged
         multigrid_kernels.warm_up()  # the V-cycle a large cloth's solves use
+        if "block_ldl" in available_methods():
+            from . import trailing_ldl   # imports numba, like block_ldl
+            trailing_ldl.warm_up()  # contact rounds on one factorisation
     except Exception as exc:    # never a reason to refuse the real scene: it only costs time
         log.warning("compiled kernels not warmed up (%s); the first step loads them", exc)
     return _time.perf_counter() - start

@@ -250,10 +250,17 @@ class BlockLdl(LinearSolver):
     name = "block_ldl"
     auto_limits = (AUTO_FAST_DIRECT_LIMIT, AUTO_FAST_DIRECT_LIMIT_GRADED)
 
+    #: Contact rounds on one factorisation with the constrained particles
+    #: last, where that is expected to pay (:mod:`.trailing_ldl`).
+    trailing_rounds = True
+
     def reset_topology(self, pattern, uv, graded=False):
         super().reset_topology(pattern, uv)
         self._symbolic = None
         self._factored = _FactoredSystem()
+        self._symbolic_updates = None
+        from .trailing_ldl import TrailingRounds
+        self._trailing = TrailingRounds()
 
     def _analyse(self, matrix) -> None:
         kernels = _block_ldl_module()
@@ -276,6 +283,10 @@ class BlockLdl(LinearSolver):
             b, z = projected_rhs(matrix, rhs, constraints)
             perm, pointers = self._symbolic[2], self._symbolic[5]
         else:
+            trailing = (self._trailing.solve(self, matrix, rhs, constraints)
+                        if self.trailing_rounds else None)
+            if trailing is not None:
+                return trailing
             if self._symbolic is None:
                 self._analyse(matrix)                       # Â has A's pattern
             data, b, z = projected_data(matrix, rhs, constraints, self.pattern,
@@ -293,6 +304,13 @@ class BlockLdl(LinearSolver):
         y = kernels.solve(perm, pointers, self._rows, self._factor, self._inverse_diagonal,
                           np.ascontiguousarray(b))
         return _factorised_result(matrix, rhs, constraints, z, y, self.tolerance)
+
+    def _updates(self) -> float:
+        """Block updates of one ordinary factorisation of this topology."""
+        if self._symbolic_updates is None:
+            counts = np.diff(self._symbolic[5])
+            self._symbolic_updates = float(np.sum(counts * (counts + 1) // 2))
+        return self._symbolic_updates
 
 
 def _held_particles(matrix, rhs, constraints) -> np.ndarray:

@@ -1,0 +1,460 @@
+"""Contact rounds on one factorisation: the constrained particles eliminated last
+(design §3, "Linear solvers").
+
+A contact solve (:meth:`~cloth_lod_ros.sim.integrator.ImplicitStageSolver._solve_with_contacts`)
+solves ``Â y = b̂`` with ``Â = S A S + (I − S) D (I − S)`` several times on
+the same ``A``: every contact held, then the pulling ones released, then
+rounds in which more of them slide (six solves per Newton iteration in
+``grasp_lift``'s hold phase).  Only the filters ``S_C`` of the constrained
+particles ``C`` change between them; every other particle is free
+(``S_I = I``).  With ``C`` ordered last,
+
+    Â = [L_I 0; S_C L_CI I] [D_I 0; 0 M] [L_Iᵀ L_CIᵀ S_C; 0 I],
+    M = S_C T S_C + (I − S_C) D_C (I − S_C),   T = A_CC − L_CI D_I L_CIᵀ,
+
+where ``L_I D_I L_Iᵀ = A_II`` and ``L_CI = A_CI L_I⁻ᵀ D_I⁻¹`` do not depend on
+``S`` at all: they are factorised once per ``A`` (:func:`numeric_trailing`,
+the up-looking factorisation of :mod:`.block_ldl` that stops at ``C`` and
+leaves its unfiltered Schur complement ``T``, dense), and each round only
+filters ``T`` and factorises the dense ``M`` (``3|C|`` unknowns, LAPACK).
+``D_C`` are ``A``'s diagonal blocks (any SPD block gives the same ``Δv``:
+held directions are prescribed).
+
+The elimination order is the topology's AMD order with ``C`` moved to the
+end: more fill than AMD's (1.67× the block updates on a ``grasp_lift``
+hold-phase system with 51 contacts), paid once instead of at every round.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import scipy.linalg
+
+from .projection_kernels import FREE, HELD
+
+__all__ = ["TrailingFactor", "TrailingRounds", "dense_round_updates", "numeric_trailing", "forward_trailing", "back_trailing"]
+
+
+@numba.njit(cache=True)
+def numeric_trailing(indptr, indices, data, perm, pinv, parent, column_pointers, rows, factor,
+                     inverse_diagonal, first, schur):
+    """:func:`~cloth_lod_ros.sim.block_ldl.numeric` for the positions before
+    ``first``; the rows from ``first`` on get their blocks in the columns
+    before ``first`` (``L_CI``), and ``schur`` ``(c, c, 3, 3)`` gets
+    ``T = A_CC − L_CI D_I L_CIᵀ`` (position ``first + a`` is ``schur[a]``).
+    Returns −1, or the position of a singular pivot block before ``first``."""
+    n = len(perm)
+    filled = np.zeros(n, np.int64)
+    flag = np.full(n, -1, np.int64)
+    work = np.zeros((n, 3, 3))
+    stack = np.empty(n, np.int64)
+    path = np.empty(n, np.int64)
+    pivot = np.empty((3, 3))
+    for k in range(n):
+        flag[k] = k
+        row = perm[k]
+        top = n
+        for p in range(indptr[row], indptr[row + 1]):
+            i = pinv[indices[p]]
+            if i == k:
+                for a in range(3):
+                    for b in range(3):
+                        pivot[a, b] = data[p, a, b]
+            elif i < k:
+                for a in range(3):
+                    for b in range(3):
+                        work[i, a, b] = data[p, b, a]
+                m = 0
+                while flag[i] != k:
+                    path[m] = i
+                    m += 1
+                    flag[i] = k
+                    i = parent[i]
+                while m > 0:
+                    m -= 1
+                    top -= 1
+                    stack[top] = path[m]
+        for t in range(top, n):
+            i = stack[t]
+            y = work[i]
+            if i >= first:
+                # Row k of the trailing block: y is T(i, k), final (every
+                # interior column has updated it); no elimination here.
+                for a in range(3):
+                    for b in range(3):
+                        schur[i - first, k - first, a, b] = y[a, b]
+                        schur[k - first, i - first, b, a] = y[a, b]
+                        y[a, b] = 0.0
+                continue
+            y00, y01, y02 = y[0, 0], y[0, 1], y[0, 2]
+            y10, y11, y12 = y[1, 0], y[1, 1], y[1, 2]
+            y20, y21, y22 = y[2, 0], y[2, 1], y[2, 2]
+            for p in range(column_pointers[i], column_pointers[i] + filled[i]):
+                low = factor[p]
+                out = work[rows[p]]
+                for a in range(3):
+                    l0, l1, l2 = low[a, 0], low[a, 1], low[a, 2]
+                    out[a, 0] -= l0 * y00 + l1 * y10 + l2 * y20
+                    out[a, 1] -= l0 * y01 + l1 * y11 + l2 * y21
+                    out[a, 2] -= l0 * y02 + l1 * y12 + l2 * y22
+            q = column_pointers[i] + filled[i]
+            rows[q] = k
+            d_inv = inverse_diagonal[i]
+            new = factor[q]
+            for a in range(3):
+                for b in range(3):
+                    new[a, b] = y[0, a] * d_inv[0, b] + y[1, a] * d_inv[1, b] \
+                        + y[2, a] * d_inv[2, b]
+            for a in range(3):
+                for b in range(3):
+                    pivot[a, b] -= new[a, 0] * y[0, b] + new[a, 1] * y[1, b] \
+                        + new[a, 2] * y[2, b]
+            filled[i] += 1
+            for a in range(3):
+                for b in range(3):
+                    y[a, b] = 0.0
+        if k >= first:
+            for a in range(3):
+                for b in range(3):
+                    schur[k - first, k - first, a, b] = 0.5 * (pivot[a, b] + pivot[b, a])
+            continue
+        a00, a11, a22 = pivot[0, 0], pivot[1, 1], pivot[2, 2]
+        a01 = 0.5 * (pivot[0, 1] + pivot[1, 0])
+        a02 = 0.5 * (pivot[0, 2] + pivot[2, 0])
+        a12 = 0.5 * (pivot[1, 2] + pivot[2, 1])
+        c00 = a11 * a22 - a12 * a12
+        c01 = a02 * a12 - a01 * a22
+        c02 = a01 * a12 - a02 * a11
+        det = a00 * c00 + a01 * c01 + a02 * c02
+        if not (det != 0.0 and np.isfinite(det)):
+            return k
+        inv = 1.0 / det
+        d_inv = inverse_diagonal[k]
+        d_inv[0, 0] = c00 * inv
+        d_inv[0, 1] = d_inv[1, 0] = c01 * inv
+        d_inv[0, 2] = d_inv[2, 0] = c02 * inv
+        d_inv[1, 1] = (a00 * a22 - a02 * a02) * inv
+        d_inv[1, 2] = d_inv[2, 1] = (a01 * a02 - a00 * a12) * inv
+        d_inv[2, 2] = (a00 * a11 - a01 * a01) * inv
+    return -1
+
+
+@numba.njit(cache=True)
+def forward_trailing(perm, column_pointers, rows, factor, inverse_diagonal, first, rhs):
+    """``x`` ``(n, 3)`` in elimination order: ``D_I⁻¹ L_I⁻¹ b_I`` before
+    ``first`` and ``b_C − L_CI L_I⁻¹ b_I`` from it on (not yet filtered)."""
+    n = len(perm)
+    x = np.empty((n, 3))
+    for k in range(n):
+        for a in range(3):
+            x[k, a] = rhs[perm[k], a]
+    for i in range(first):
+        x0, x1, x2 = x[i, 0], x[i, 1], x[i, 2]
+        for p in range(column_pointers[i], column_pointers[i + 1]):
+            low = factor[p]
+            r = rows[p]
+            for a in range(3):
+                x[r, a] -= low[a, 0] * x0 + low[a, 1] * x1 + low[a, 2] * x2
+    for i in range(first):
+        d_inv = inverse_diagonal[i]
+        x0, x1, x2 = x[i, 0], x[i, 1], x[i, 2]
+        for a in range(3):
+            x[i, a] = d_inv[a, 0] * x0 + d_inv[a, 1] * x1 + d_inv[a, 2] * x2
+    return x
+
+
+@numba.njit(cache=True)
+def back_trailing(perm, column_pointers, rows, factor, first, x):
+    """Back substitution ``L_Iᵀ x_I = x_I − L_CIᵀ x_C`` in place (``x`` in
+    elimination order, its trailing part already solved and filtered);
+    returns the solution by particle ``(n, 3)``."""
+    n = len(perm)
+    for i in range(first - 1, -1, -1):
+        s0, s1, s2 = x[i, 0], x[i, 1], x[i, 2]
+        for p in range(column_pointers[i], column_pointers[i + 1]):
+            low = factor[p]
+            r = rows[p]
+            s0 -= low[0, 0] * x[r, 0] + low[1, 0] * x[r, 1] + low[2, 0] * x[r, 2]
+            s1 -= low[0, 1] * x[r, 0] + low[1, 1] * x[r, 1] + low[2, 1] * x[r, 2]
+            s2 -= low[0, 2] * x[r, 0] + low[1, 2] * x[r, 1] + low[2, 2] * x[r, 2]
+        x[i, 0], x[i, 1], x[i, 2] = s0, s1, s2
+    out = np.empty((n, 3))
+    for k in range(n):
+        for a in range(3):
+            out[perm[k], a] = x[k, a]
+    return out
+
+
+@numba.njit(cache=True)
+def filtered_schur(schur, state, filters, diagonal, out):
+    """``M = S T S + (I − S) D (I − S)`` ``(3c, 3c)`` into ``out`` from ``T``
+    ``schur`` ``(c, c, 3, 3)``, the trailing particles' filter states
+    ``(c,)`` and filters ``(c, 3, 3)`` and ``A``'s diagonal blocks ``D``
+    ``(c, 3, 3)``; also returns the filters as ``(c, 3, 3)`` matrices."""
+    c = len(state)
+    s = np.zeros((c, 3, 3))
+    for i in range(c):
+        if state[i] == FREE:
+            for a in range(3):
+                s[i, a, a] = 1.0
+        elif state[i] != HELD:
+            s[i] = filters[i]
+    left = np.empty((3, 3))
+    for i in range(c):
+        si = s[i]
+        for j in range(i + 1):
+            t = schur[i, j]
+            sj = s[j]
+            for a in range(3):
+                for e in range(3):
+                    left[a, e] = si[a, 0] * t[0, e] + si[a, 1] * t[1, e] + si[a, 2] * t[2, e]
+            for a in range(3):
+                for d in range(3):
+                    v = left[a, 0] * sj[d, 0] + left[a, 1] * sj[d, 1] + left[a, 2] * sj[d, 2]
+                    out[3 * i + a, 3 * j + d] = v
+                    out[3 * j + d, 3 * i + a] = v
+        # (I − S) D (I − S) on the diagonal block.
+        free = np.eye(3) - si
+        for a in range(3):
+            for d in range(3):
+                v = 0.0
+                for e in range(3):
+                    for f in range(3):
+                        v += free[a, e] * diagonal[i, e, f] * free[d, f]
+                out[3 * i + a, 3 * i + d] += v
+    return s
+
+
+def dense_round_updates(count: int) -> float:
+    """A round's dense work for ``count`` trailing particles, in 3 × 3 block
+    updates (27 multiply-adds): the Cholesky of ``M`` (``(3c)³/6``) at twice
+    the sparse kernels' rate (LAPACK on a dense block) and as much again for
+    filtering ``T`` and the triangular solves."""
+    return (3.0 * count) ** 3 / 6.0 / 27.0 / 2.0
+
+
+class TrailingFactor:
+    """One ``A`` factorised with the particles ``trailing`` last (module docstring).
+
+    Args:
+        indptr, indices: A's block pattern (int64).  order: ``(n,)`` the
+            topology's elimination order (AMD).  trailing: ``(c,)`` sorted
+            particles whose filters the rounds may change.
+        symbolic: :func:`~cloth_lod_ros.sim.block_ldl.symbolic`.
+        diagonal_slots: ``(n,)`` the block of each particle's diagonal in A.
+    """
+
+    def __init__(self, indptr, indices, order, trailing, symbolic, diagonal_slots):
+        n = len(order)
+        self.n = n
+        self.trailing = trailing
+        last = np.zeros(n, dtype=bool)
+        last[trailing] = True
+        self.perm = np.concatenate([order[~last[order]], trailing]).astype(np.int64)
+        self.pinv = np.empty(n, dtype=np.int64)
+        self.pinv[self.perm] = np.arange(n)
+        self.first = n - len(trailing)
+        self.indptr, self.indices = indptr, indices
+        self.parent, self.pointers = symbolic(indptr, indices, self.perm, self.pinv)
+        self.rows = np.empty(self.pointers[-1], dtype=np.int64)
+        self.factor = np.empty((self.pointers[-1], 3, 3))
+        self.inverse_diagonal = np.empty((n, 3, 3))
+        self.member = last
+        # A's diagonal block of each trailing particle.
+        self.diagonal_slots = diagonal_slots[trailing]
+        self._dense = np.empty((3 * len(trailing), 3 * len(trailing)))
+        counts = np.diff(self.pointers)[:self.first]
+        #: Block updates of :meth:`refactor` (the up-looking count of its columns).
+        self.updates = float(np.sum(counts * (counts + 1) // 2))
+        self._key = None
+
+    def refactor(self, matrix, data) -> bool:
+        """Factorise ``A`` (``data`` ``(blocks, 3, 3)``); False if a pivot
+        before the trailing block is singular (the caller refactorises the
+        projected system and reports)."""
+        c = len(self.trailing)
+        schur = np.zeros((c, c, 3, 3))      # pairs outside each row's reach stay 0
+        failed = numeric_trailing(self.indptr, self.indices, data, self.perm, self.pinv,
+                                  self.parent, self.pointers, self.rows, self.factor,
+                                  self.inverse_diagonal, self.first, schur)
+        if failed >= 0:
+            self._key = None
+            return False
+        self.schur = schur
+        self.diagonal = np.ascontiguousarray(data[self.diagonal_slots])
+        self._key = (matrix, data.copy(), data.ravel()[::97].copy())
+        return True
+
+    def holds(self, matrix) -> bool:
+        """Whether this is the factorisation of ``matrix``'s current numbers."""
+        key = self._key
+        return (key is not None and key[0] is matrix
+                and np.array_equal(key[2], matrix.data.ravel()[::97])    # cheap test first
+                and np.array_equal(key[1], matrix.data))
+
+    def covers(self, state) -> bool:
+        """Whether every constrained particle (``state`` ``(n,)`` int8) is trailing."""
+        return not np.any((state != FREE) & ~self.member)
+
+    def solve(self, state, filters, b):
+        """``y`` ``(n, 3)`` with ``Â y = b`` for the filters ``(state, filters)``
+        (:func:`~cloth_lod_ros.sim.projection_kernels.particle_filters`) and
+        ``b`` ``(n, 3)`` the projected right-hand side ``S (b − A z)``."""
+        c = len(self.trailing)
+        m = self._dense
+        s = filtered_schur(self.schur, state[self.trailing], filters[self.trailing],
+                           self.diagonal, m)
+        x = forward_trailing(self.perm, self.pointers, self.rows, self.factor,
+                             self.inverse_diagonal, self.first, np.ascontiguousarray(b))
+        tail = np.einsum("kab,kb->ka", s, x[self.first:])
+        y_c = scipy.linalg.cho_solve(scipy.linalg.cho_factor(m, overwrite_a=True,
+                                                             check_finite=False),
+                                     tail.reshape(-1), check_finite=False)
+        x[self.first:] = np.einsum("kab,kb->ka", s, y_c.reshape(c, 3))
+        return back_trailing(self.perm, self.pointers, self.rows, self.factor, self.first, x)
+
+
+class TrailingRounds:
+    """When a :class:`~cloth_lod_ros.sim.solvers.BlockLdl` solves on a
+    trailing factorisation, and the one it keeps (one per topology).
+
+    A trailing factorisation pays when the rounds it serves save more
+    ordinary factorisations than it costs.  With ``r`` the filters solved per
+    matrix lately (running mean; fewer if the last trailing factorisations
+    served fewer, e.g. new contacts part way) it is taken where
+
+        U_trailing + r · U_round  <  gain · r · U_ordinary,
+
+    in block updates, which time both factorisations alike (7.2-7.9 ns each
+    on the CI VM); a round costs its dense Cholesky (:func:`dense_round_updates`)
+    plus about 20,000 updates' worth of its own kernels and calls (measured:
+    0.16 ms at 25 trailing particles, 0.26 at 51, 0.71 at 100, 1.6 at 150).  Counts, not timings: the
+    choice, and so the trajectory to round-off, is the same on every machine
+    and in a bag's re-simulation.
+    """
+
+    #: The saving asked for.
+    gain = 0.8
+    #: Most constrained particles: a cloth lying on a table, or the 50-100
+    #: contacts of ``drop_on_disc``, whose dense rounds took 0.7-1.4 ms in a
+    #: step (cache misses) against the 0.3-0.5 the counts foretell.
+    limit = 60
+    #: Smaller systems factorise faster than a trailing round's own overhead:
+    #: block updates of one ordinary factorisation.
+    min_updates = 30_000
+    #: A round's work besides its dense Cholesky, in block updates.
+    round_overhead = 20_000.0
+
+    def __init__(self):
+        self.factor: TrailingFactor | None = None
+        self._rounds = 0.0            # filters solved per matrix, running mean
+        self._this_matrix = None      # (matrix, filters solved on it so far)
+        self._served = np.inf         # solves per trailing factorisation, running mean
+        self._serving = None
+
+    def _count(self, matrix) -> bool:
+        """Count a solve on ``matrix``; whether it was declined for it already.
+        The assembly reuses the matrix's storage: a new linearisation is told
+        by its numbers (a sample of them: this only counts and declines)."""
+        sample = matrix.data.ravel()[::97].copy()
+        seen = self._this_matrix
+        if seen is not None and seen[0] is matrix and np.array_equal(seen[1], sample):
+            self._this_matrix = (matrix, sample, seen[2] + 1, seen[3])
+            return seen[3]
+        if seen is not None:
+            self._rounds = 0.5 * self._rounds + 0.5 * seen[2]
+        self._this_matrix = (matrix, sample, 1, False)
+        return False
+
+    def _decline(self) -> None:
+        """The ordinary factorisation for the rest of this matrix's rounds."""
+        seen = self._this_matrix
+        self._this_matrix = (seen[0], seen[1], seen[2], True)
+
+    def _pays(self, trailing_updates: float, count: int, updates: float,
+              rounds: float) -> bool:
+        one_round = self.round_overhead + dense_round_updates(count)
+        return trailing_updates + rounds * one_round < self.gain * rounds * updates
+
+    def solve(self, backend, matrix, rhs, constraints):
+        """The backend's solve on a trailing factorisation, or None where it
+        takes its ordinary factorisation instead (few rounds lately, too
+        small, too many or no constraints, a constraint outside the trailing
+        block, no compiled kernels)."""
+        from . import projection_kernels as projection
+        from .solvers import _FactoredSystem, _block_ldl_module, _factorised_result
+        if self._count(matrix):
+            return None                 # declined for this matrix already
+        factor = self.factor
+        held = factor is not None and factor.holds(matrix)
+        if not held and (self._rounds < 1.5 or backend._symbolic is None
+                         or backend._updates() < self.min_updates):
+            self._decline()
+            return None                 # the usual case: a small or contact-free system
+        filters = projection.particle_filters(matrix, rhs, constraints)
+        if filters is None:
+            return None
+        state, per_particle = filters
+        if not held or not factor.covers(state):
+            constrained = np.flatnonzero(state != FREE)
+            rounds = min(self._rounds, self._served)
+            updates = backend._updates()
+            # Moving C last costs 1.4-1.6x the fill on a cloth's hem (more
+            # where C is scattered): if even that would not pay, no ordering
+            # is worked out for it.
+            if (not len(constrained) or len(constrained) > self.limit
+                    or not self._pays(1.4 * updates, len(constrained), updates, rounds)):
+                self._decline()
+                return None
+            if factor is None or not np.array_equal(factor.trailing, constrained):
+                indptr, indices, perm = backend._symbolic[:3]
+                factor = TrailingFactor(indptr, indices, perm, constrained,
+                                        _block_ldl_module().symbolic,
+                                        backend.pattern.diagonal_block)
+                self.factor = factor        # its ordering, for the next matrix too
+            if not self._pays(factor.updates, len(constrained), updates, rounds):
+                self._decline()
+                return None
+            if self._serving is not None:
+                self._served = 0.5 * self._served + 0.5 * self._serving
+            self._serving = 0
+            if not factor.refactor(matrix, np.ascontiguousarray(matrix.data)):
+                return None
+            _FactoredSystem.factorisations += 1
+        b, z = projection.projected_rhs(matrix, rhs, constraints)
+        try:
+            y = factor.solve(state, per_particle, b)
+        except np.linalg.LinAlgError:
+            return None
+        result = _factorised_result(matrix, rhs, constraints, z, y, backend.tolerance)
+        if not result.converged:
+            return None
+        self._serving += 1
+        return result
+
+
+def warm_up() -> None:
+    """Compile or load these kernels on a four-particle chain with two
+    trailing particles (one held, one sliding), so no timed solve pays for it."""
+    import scipy.sparse as sp
+    from .block_ldl import symbolic
+    n = 4
+    rows, cols, blocks = [], [], []
+    for i in range(n):
+        for j in range(max(0, i - 1), min(n, i + 2)):
+            rows.append(i)
+            cols.append(j)
+            blocks.append(np.eye(3) * (4.0 if i == j else -1.0))
+    indptr = np.searchsorted(np.array(rows), np.arange(n + 1)).astype(np.int64)
+    matrix = sp.bsr_matrix((np.array(blocks), np.array(cols), indptr), shape=(3 * n, 3 * n))
+    indices = matrix.indices.astype(np.int64)
+    diagonal = np.array([indptr[i] + list(cols[indptr[i]:indptr[i + 1]]).index(i)
+                         for i in range(n)], dtype=np.int64)
+    factor = TrailingFactor(indptr, indices, np.arange(n, dtype=np.int64),
+                            np.array([2, 3], dtype=np.int64), symbolic, diagonal)
+    factor.refactor(matrix, np.ascontiguousarray(matrix.data))
+    state = np.array([FREE, FREE, HELD, 2], dtype=np.int8)
+    filters = np.zeros((n, 3, 3))
+    filters[3] = np.diag([1.0, 1.0, 0.0])
+    factor.solve(state, filters, np.ones((n, 3)))
