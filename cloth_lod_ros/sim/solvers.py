@@ -259,8 +259,10 @@ class BlockLdl(LinearSolver):
         self._symbolic = None
         self._factored = _FactoredSystem()
         self._symbolic_updates = None
-        from .trailing_ldl import TrailingRounds
-        self._trailing = TrailingRounds()
+        if getattr(self, "_trailing", None) is None:
+            from .trailing_ldl import TrailingRounds
+            self._trailing = TrailingRounds()
+        self._trailing.reset_topology()     # its rounds per matrix carry over
 
     def _analyse(self, matrix) -> None:
         kernels = _block_ldl_module()

@@ -353,6 +353,12 @@ class TrailingRounds:
         self._served = np.inf         # solves per trailing factorisation, running mean
         self._serving = None
 
+    def reset_topology(self) -> None:
+        """Forget the factorisation (the particles are renumbered); the rounds
+        per matrix are the scene's contacts', and carry over."""
+        self.factor = None
+        self._this_matrix = None
+
     def _count(self, matrix) -> bool:
         """Count a solve on ``matrix``; whether it was declined for it already.
         The assembly reuses the matrix's storage: a new linearisation is told
@@ -388,6 +394,8 @@ class TrailingRounds:
             return None                 # declined for this matrix already
         factor = self.factor
         held = factor is not None and factor.holds(matrix)
+        if not held and backend._symbolic is None and self._rounds >= 1.5:
+            backend._analyse(matrix)        # a new topology's first solve
         if not held and (self._rounds < 1.5 or backend._symbolic is None
                          or backend._updates() < self.min_updates):
             self._decline()
