@@ -149,3 +149,21 @@ def test_small_systems_and_single_solves_keep_the_ordinary_factorisation():
         for constraints in (contacts(mesh, 1)[0], contacts(mesh, 1, sliding=1.0)[0]):
             backend.solve(a, rhs, constraints, None)
     assert backend._trailing.factor is None
+
+
+def test_a_topology_change_keeps_the_rounds_learnt_and_refactorises():
+    matrix, rhs, pattern, mesh = system(5, seed=3)
+    backend = make_solver("block_ldl", 1e-8, 100)
+    backend.reset_topology(pattern, mesh.uv)
+    rounds = [contacts(mesh, 5)[0], contacts(mesh, 5, released=0.3)[0],
+              contacts(mesh, 5, released=0.3, sliding=1.0)[0]]
+    for k in range(4):
+        for constraints in rounds:
+            backend.solve(matrix * (1.0 + 0.01 * k), rhs, constraints, None)
+    backend.reset_topology(pattern, mesh.uv)        # the particles may be renumbered
+    assert backend._trailing.factor is None
+    before = solvers.factorisation_count()
+    for constraints in rounds:
+        got = backend.solve(matrix * 1.5, rhs, constraints, None)
+        assert got.converged and got.residual < 1e-10
+    assert solvers.factorisation_count() - before == 1
