@@ -32,7 +32,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["symbolic", "numeric", "solve"]
+__all__ = ["symbolic", "numeric", "factor_rows", "solve"]
 
 
 @numba.njit(cache=True)
@@ -96,6 +96,19 @@ def numeric(indptr, indices, data, perm, pinv, parent, column_pointers,
         −1 on success, else the position k whose pivot block was singular
         or not finite (the matrix is not definite).
     """
+    return factor_rows(indptr, indices, data, perm, pinv, parent, column_pointers, rows,
+                       factor, inverse_diagonal, held, len(perm), np.zeros((0, 0, 3, 3)))
+
+
+@numba.njit(cache=True)
+def factor_rows(indptr, indices, data, perm, pinv, parent, column_pointers, rows, factor,
+                inverse_diagonal, held, first, schur):
+    """:func:`numeric` for the positions before ``first``; the rows from
+    ``first`` on (the trailing block, :mod:`.trailing_ldl`) get their blocks
+    in the columns before ``first`` (``L_CI``), and ``schur`` ``(c, c, 3, 3)``
+    gets ``T = A_CC − L_CI D_I L_CIᵀ`` (position ``first + a`` is ``schur[a]``);
+    nothing is eliminated there.  Returns −1, or the position of a singular
+    pivot block before ``first``."""
     n = len(perm)
     filled = np.zeros(n, np.int64)          # blocks of column i written so far
     flag = np.full(n, -1, np.int64)
@@ -133,6 +146,15 @@ def numeric(indptr, indices, data, perm, pinv, parent, column_pointers,
         for t in range(top, n):
             i = stack[t]
             y = work[i]
+            if i >= first:
+                # Row k of the trailing block: y is T(i, k), final (every
+                # interior column has updated it); no elimination here.
+                for a in range(3):
+                    for b in range(3):
+                        schur[i - first, k - first, a, b] = y[a, b]
+                        schur[k - first, i - first, b, a] = y[a, b]
+                        y[a, b] = 0.0
+                continue
             if row_held or held[perm[i]]:
                 # y_i is zero (row k or row i of L is): L(k, i) = 0, nothing to update.
                 q = column_pointers[i] + filled[i]
@@ -170,6 +192,11 @@ def numeric(indptr, indices, data, perm, pinv, parent, column_pointers,
             for a in range(3):
                 for b in range(3):
                     y[a, b] = 0.0
+        if k >= first:
+            for a in range(3):
+                for b in range(3):
+                    schur[k - first, k - first, a, b] = 0.5 * (pivot[a, b] + pivot[b, a])
+            continue
         # D_k⁻¹ by cofactors of the symmetric part (D_k is symmetric up to round-off).
         a00, a11, a22 = pivot[0, 0], pivot[1, 1], pivot[2, 2]
         a01 = 0.5 * (pivot[0, 1] + pivot[1, 0])

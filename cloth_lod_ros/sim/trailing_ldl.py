@@ -13,7 +13,7 @@ particles ``C`` change between them; every other particle is free
     M = S_C T S_C + (I − S_C) D_C (I − S_C),   T = A_CC − L_CI D_I L_CIᵀ,
 
 where ``L_I D_I L_Iᵀ = A_II`` and ``L_CI = A_CI L_I⁻ᵀ D_I⁻¹`` do not depend on
-``S`` at all: they are factorised once per ``A`` (:func:`numeric_trailing`,
+``S`` at all: they are factorised once per ``A`` (:func:`~cloth_lod_ros.sim.block_ldl.factor_rows`,
 the up-looking factorisation of :mod:`.block_ldl` that stops at ``C`` and
 leaves its unfiltered Schur complement ``T``, dense), and each round only
 filters ``T`` and factorises the dense ``M`` (``3|C|`` unknowns, LAPACK).
@@ -31,113 +31,10 @@ import numba
 import numpy as np
 import scipy.linalg
 
+from .block_ldl import factor_rows
 from .projection_kernels import FREE, HELD
 
-__all__ = ["TrailingFactor", "TrailingRounds", "dense_round_updates", "numeric_trailing", "forward_trailing", "back_trailing"]
-
-
-@numba.njit(cache=True)
-def numeric_trailing(indptr, indices, data, perm, pinv, parent, column_pointers, rows, factor,
-                     inverse_diagonal, first, schur):
-    """:func:`~cloth_lod_ros.sim.block_ldl.numeric` for the positions before
-    ``first``; the rows from ``first`` on get their blocks in the columns
-    before ``first`` (``L_CI``), and ``schur`` ``(c, c, 3, 3)`` gets
-    ``T = A_CC − L_CI D_I L_CIᵀ`` (position ``first + a`` is ``schur[a]``).
-    Returns −1, or the position of a singular pivot block before ``first``."""
-    n = len(perm)
-    filled = np.zeros(n, np.int64)
-    flag = np.full(n, -1, np.int64)
-    work = np.zeros((n, 3, 3))
-    stack = np.empty(n, np.int64)
-    path = np.empty(n, np.int64)
-    pivot = np.empty((3, 3))
-    for k in range(n):
-        flag[k] = k
-        row = perm[k]
-        top = n
-        for p in range(indptr[row], indptr[row + 1]):
-            i = pinv[indices[p]]
-            if i == k:
-                for a in range(3):
-                    for b in range(3):
-                        pivot[a, b] = data[p, a, b]
-            elif i < k:
-                for a in range(3):
-                    for b in range(3):
-                        work[i, a, b] = data[p, b, a]
-                m = 0
-                while flag[i] != k:
-                    path[m] = i
-                    m += 1
-                    flag[i] = k
-                    i = parent[i]
-                while m > 0:
-                    m -= 1
-                    top -= 1
-                    stack[top] = path[m]
-        for t in range(top, n):
-            i = stack[t]
-            y = work[i]
-            if i >= first:
-                # Row k of the trailing block: y is T(i, k), final (every
-                # interior column has updated it); no elimination here.
-                for a in range(3):
-                    for b in range(3):
-                        schur[i - first, k - first, a, b] = y[a, b]
-                        schur[k - first, i - first, b, a] = y[a, b]
-                        y[a, b] = 0.0
-                continue
-            y00, y01, y02 = y[0, 0], y[0, 1], y[0, 2]
-            y10, y11, y12 = y[1, 0], y[1, 1], y[1, 2]
-            y20, y21, y22 = y[2, 0], y[2, 1], y[2, 2]
-            for p in range(column_pointers[i], column_pointers[i] + filled[i]):
-                low = factor[p]
-                out = work[rows[p]]
-                for a in range(3):
-                    l0, l1, l2 = low[a, 0], low[a, 1], low[a, 2]
-                    out[a, 0] -= l0 * y00 + l1 * y10 + l2 * y20
-                    out[a, 1] -= l0 * y01 + l1 * y11 + l2 * y21
-                    out[a, 2] -= l0 * y02 + l1 * y12 + l2 * y22
-            q = column_pointers[i] + filled[i]
-            rows[q] = k
-            d_inv = inverse_diagonal[i]
-            new = factor[q]
-            for a in range(3):
-                for b in range(3):
-                    new[a, b] = y[0, a] * d_inv[0, b] + y[1, a] * d_inv[1, b] \
-                        + y[2, a] * d_inv[2, b]
-            for a in range(3):
-                for b in range(3):
-                    pivot[a, b] -= new[a, 0] * y[0, b] + new[a, 1] * y[1, b] \
-                        + new[a, 2] * y[2, b]
-            filled[i] += 1
-            for a in range(3):
-                for b in range(3):
-                    y[a, b] = 0.0
-        if k >= first:
-            for a in range(3):
-                for b in range(3):
-                    schur[k - first, k - first, a, b] = 0.5 * (pivot[a, b] + pivot[b, a])
-            continue
-        a00, a11, a22 = pivot[0, 0], pivot[1, 1], pivot[2, 2]
-        a01 = 0.5 * (pivot[0, 1] + pivot[1, 0])
-        a02 = 0.5 * (pivot[0, 2] + pivot[2, 0])
-        a12 = 0.5 * (pivot[1, 2] + pivot[2, 1])
-        c00 = a11 * a22 - a12 * a12
-        c01 = a02 * a12 - a01 * a22
-        c02 = a01 * a12 - a02 * a11
-        det = a00 * c00 + a01 * c01 + a02 * c02
-        if not (det != 0.0 and np.isfinite(det)):
-            return k
-        inv = 1.0 / det
-        d_inv = inverse_diagonal[k]
-        d_inv[0, 0] = c00 * inv
-        d_inv[0, 1] = d_inv[1, 0] = c01 * inv
-        d_inv[0, 2] = d_inv[2, 0] = c02 * inv
-        d_inv[1, 1] = (a00 * a22 - a02 * a02) * inv
-        d_inv[1, 2] = d_inv[2, 1] = (a01 * a02 - a00 * a12) * inv
-        d_inv[2, 2] = (a00 * a11 - a01 * a01) * inv
-    return -1
+__all__ = ["TrailingFactor", "TrailingRounds", "dense_round_updates", "forward_trailing", "back_trailing"]
 
 
 @numba.njit(cache=True)
@@ -268,6 +165,7 @@ class TrailingFactor:
         #: Block updates of :meth:`refactor` (the up-looking count of its columns).
         self.updates = float(np.sum(counts * (counts + 1) // 2))
         self._key = None
+        self._free = np.zeros(n, dtype=bool)     # A itself: no held particle to skip
 
     def refactor(self, matrix, data) -> bool:
         """Factorise ``A`` (``data`` ``(blocks, 3, 3)``); False if a pivot
@@ -275,9 +173,9 @@ class TrailingFactor:
         projected system and reports)."""
         c = len(self.trailing)
         schur = np.zeros((c, c, 3, 3))      # pairs outside each row's reach stay 0
-        failed = numeric_trailing(self.indptr, self.indices, data, self.perm, self.pinv,
-                                  self.parent, self.pointers, self.rows, self.factor,
-                                  self.inverse_diagonal, self.first, schur)
+        failed = factor_rows(self.indptr, self.indices, data, self.perm, self.pinv,
+                             self.parent, self.pointers, self.rows, self.factor,
+                             self.inverse_diagonal, self._free, self.first, schur)
         if failed >= 0:
             self._key = None
             return False
