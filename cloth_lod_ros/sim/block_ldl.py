@@ -32,7 +32,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["symbolic", "numeric", "factor_rows", "solve"]
+__all__ = ["symbolic", "numeric", "factor_rows", "solve", "forward_part", "back_part"]
 
 
 @numba.njit(cache=True)
@@ -223,23 +223,42 @@ def factor_rows(indptr, indices, data, perm, pinv, parent, column_pointers, rows
 def solve(perm, column_pointers, rows, factor, inverse_diagonal, rhs):
     """``x = A⁻¹ b`` from :func:`numeric`'s factor; ``rhs`` and the result ``(n, 3)``."""
     n = len(perm)
+    x = forward_part(perm, column_pointers, rows, factor, inverse_diagonal, n, rhs)
+    return back_part(perm, column_pointers, rows, factor, n, x)
+
+
+@numba.njit(cache=True)
+def forward_part(perm, column_pointers, rows, factor, inverse_diagonal, first, rhs):
+    """``x`` ``(n, 3)`` in elimination order: ``D_I⁻¹ L_I⁻¹ b_I`` before
+    ``first`` and ``b_C − L_CI L_I⁻¹ b_I`` from it on (``first = n``: the
+    forward substitution and ``D⁻¹`` of :func:`solve`)."""
+    n = len(perm)
     x = np.empty((n, 3))
     for k in range(n):
         for a in range(3):
             x[k, a] = rhs[perm[k], a]
-    for i in range(n):                                      # L z = P b
+    for i in range(first):
         x0, x1, x2 = x[i, 0], x[i, 1], x[i, 2]
         for p in range(column_pointers[i], column_pointers[i + 1]):
             low = factor[p]
             r = rows[p]
             for a in range(3):
                 x[r, a] -= low[a, 0] * x0 + low[a, 1] * x1 + low[a, 2] * x2
-    for i in range(n):                                      # D⁻¹
+    for i in range(first):
         d_inv = inverse_diagonal[i]
         x0, x1, x2 = x[i, 0], x[i, 1], x[i, 2]
         for a in range(3):
             x[i, a] = d_inv[a, 0] * x0 + d_inv[a, 1] * x1 + d_inv[a, 2] * x2
-    for i in range(n - 1, -1, -1):                          # Lᵀ (P x) = w
+    return x
+
+
+@numba.njit(cache=True)
+def back_part(perm, column_pointers, rows, factor, first, x):
+    """Back substitution ``L_Iᵀ x_I = x_I − L_CIᵀ x_C`` in place (``x`` in
+    elimination order, its trailing part already solved); returns the
+    solution by particle ``(n, 3)``."""
+    n = len(perm)
+    for i in range(first - 1, -1, -1):
         s0, s1, s2 = x[i, 0], x[i, 1], x[i, 2]
         for p in range(column_pointers[i], column_pointers[i + 1]):
             low = factor[p]

@@ -31,56 +31,10 @@ import numba
 import numpy as np
 import scipy.linalg
 
-from .block_ldl import factor_rows
+from .block_ldl import back_part, factor_rows, forward_part
 from .projection_kernels import FREE, HELD
 
-__all__ = ["TrailingFactor", "TrailingRounds", "dense_round_updates", "forward_trailing", "back_trailing"]
-
-
-@numba.njit(cache=True)
-def forward_trailing(perm, column_pointers, rows, factor, inverse_diagonal, first, rhs):
-    """``x`` ``(n, 3)`` in elimination order: ``D_I⁻¹ L_I⁻¹ b_I`` before
-    ``first`` and ``b_C − L_CI L_I⁻¹ b_I`` from it on (not yet filtered)."""
-    n = len(perm)
-    x = np.empty((n, 3))
-    for k in range(n):
-        for a in range(3):
-            x[k, a] = rhs[perm[k], a]
-    for i in range(first):
-        x0, x1, x2 = x[i, 0], x[i, 1], x[i, 2]
-        for p in range(column_pointers[i], column_pointers[i + 1]):
-            low = factor[p]
-            r = rows[p]
-            for a in range(3):
-                x[r, a] -= low[a, 0] * x0 + low[a, 1] * x1 + low[a, 2] * x2
-    for i in range(first):
-        d_inv = inverse_diagonal[i]
-        x0, x1, x2 = x[i, 0], x[i, 1], x[i, 2]
-        for a in range(3):
-            x[i, a] = d_inv[a, 0] * x0 + d_inv[a, 1] * x1 + d_inv[a, 2] * x2
-    return x
-
-
-@numba.njit(cache=True)
-def back_trailing(perm, column_pointers, rows, factor, first, x):
-    """Back substitution ``L_Iᵀ x_I = x_I − L_CIᵀ x_C`` in place (``x`` in
-    elimination order, its trailing part already solved and filtered);
-    returns the solution by particle ``(n, 3)``."""
-    n = len(perm)
-    for i in range(first - 1, -1, -1):
-        s0, s1, s2 = x[i, 0], x[i, 1], x[i, 2]
-        for p in range(column_pointers[i], column_pointers[i + 1]):
-            low = factor[p]
-            r = rows[p]
-            s0 -= low[0, 0] * x[r, 0] + low[1, 0] * x[r, 1] + low[2, 0] * x[r, 2]
-            s1 -= low[0, 1] * x[r, 0] + low[1, 1] * x[r, 1] + low[2, 1] * x[r, 2]
-            s2 -= low[0, 2] * x[r, 0] + low[1, 2] * x[r, 1] + low[2, 2] * x[r, 2]
-        x[i, 0], x[i, 1], x[i, 2] = s0, s1, s2
-    out = np.empty((n, 3))
-    for k in range(n):
-        for a in range(3):
-            out[perm[k], a] = x[k, a]
-    return out
+__all__ = ["TrailingFactor", "TrailingRounds", "dense_round_updates", "filtered_schur"]
 
 
 @numba.njit(cache=True)
@@ -203,14 +157,14 @@ class TrailingFactor:
         m = self._dense
         s = filtered_schur(self.schur, state[self.trailing], filters[self.trailing],
                            self.diagonal, m)
-        x = forward_trailing(self.perm, self.pointers, self.rows, self.factor,
+        x = forward_part(self.perm, self.pointers, self.rows, self.factor,
                              self.inverse_diagonal, self.first, np.ascontiguousarray(b))
         tail = np.einsum("kab,kb->ka", s, x[self.first:])
         y_c = scipy.linalg.cho_solve(scipy.linalg.cho_factor(m, overwrite_a=True,
                                                              check_finite=False),
                                      tail.reshape(-1), check_finite=False)
         x[self.first:] = np.einsum("kab,kb->ka", s, y_c.reshape(c, 3))
-        return back_trailing(self.perm, self.pointers, self.rows, self.factor, self.first, x)
+        return back_part(self.perm, self.pointers, self.rows, self.factor, self.first, x)
 
 
 class TrailingRounds:
