@@ -33,8 +33,8 @@ import numpy as np
 from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
 from .contact import nearest_surface
 from .forces import Elements, air_power
-from . import (hierarchy_kernels, kernels, lod_kernels, multigrid_kernels, projection_kernels,
-               self_kernels, topology_kernels)
+from . import (compact_kernels, hierarchy_kernels, kernels, lod_kernels, multigrid_kernels,
+               projection_kernels, self_kernels, topology_kernels)
 from .topology_kernels import precompute   # compiled when numba is there
 from .kernels import elastic_energies   # compiled when numba is there
 from .grasps import Grasp
@@ -114,6 +114,7 @@ def warm_up_compiled_code() -> float:
         projection_kernels.warm_up()  # sliding contacts' projection, if the tiny step had none
         lod_kernels.warm_up()       # the LOD criterion's, whether or not the tiny step merged
         multigrid_kernels.warm_up()  # the V-cycle a large cloth's solves use
+        compact_kernels.warm_up()   # a topology change's compact mesh and held patches
     except Exception as exc:    # never a reason to refuse the real scene: it only costs time
         log.warning("compiled kernels not warmed up (%s); the first step loads them", exc)
     return _time.perf_counter() - start
@@ -206,9 +207,9 @@ class ClothSim(HeldInputs, ObstacleInputs):
         h = self.hierarchy
         self.mesh, self.vertex_ids, self.triangle_ids = h.active_mesh()
         self.elements = precompute(self.mesh)
-        self.masses = h.masses[self.vertex_ids]
-        self.state = ClothState(h.x[self.vertex_ids].copy(), h.v[self.vertex_ids].copy(),
-                                self.state.time)
+        # (h.masses is the whole pool's; a gather copies, no .copy() needed)
+        self.masses = h.mass_units[self.vertex_ids] * h.unit_mass
+        self.state = ClothState(h.x[self.vertex_ids], h.v[self.vertex_ids], self.state.time)
         # The sparsity pattern is built by the first solve on this topology:
         # a LOD pass that refines in rounds adopts several meshes in a row.
         levels = self.mesh.levels

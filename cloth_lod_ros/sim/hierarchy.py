@@ -47,6 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import compact_kernels as _compact
 from . import hierarchy_kernels as _compiled
 from .mesh48 import MeshError, RestMesh
 
@@ -329,6 +330,9 @@ class Hierarchy48:
             vertex ``vertex_ids[i]``, compact triangle ``k`` is pool triangle
             ``triangle_ids[k]`` (both increasing).
         """
+        compiled = _compact.active_mesh(self)      # one pass, the same arrays
+        if compiled is not None:
+            return compiled
         vids = self.active_vertices()
         tids = self.active_triangles()
         remap = np.full(self.vertex_end, -1, dtype=np.int64)
