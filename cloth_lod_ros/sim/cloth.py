@@ -429,6 +429,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
         lookahead = (self.scene.lod.check_interval - 1) * self.time_step
         sc, own = self.self_collision, self.scene.self_collision
         total_splits = total_merges = 0
+        recheck = None      # after a round: its merged edges (the next one re-checks)
         for round_index in range(max(1, int(rounds))):
             h, time = self.hierarchy, self.state.time
             held_nodes = self._held_nodes()
@@ -446,9 +447,10 @@ class ClothSim(HeldInputs, ObstacleInputs):
                 detail_points=detail_points, in_contact=in_contact,
                 supported=self._merge_would_sink if self.obstacles else None,
                 simplify=simplify and round_index == 0, lookahead=lookahead,
-                layered=layered, layered_level=own.detail_level)
+                layered=layered, layered_level=own.detail_level, recheck=recheck)
             if not decision.refine and not decision.merge:
                 break
+            recheck = np.array(decision.merge, dtype=np.int64).reshape(-1, 2)
             self._sync_hierarchy()
             old_ids = self.vertex_ids
             splits, merges = LodPolicy.apply(h, decision, time, log=self._step_operations)

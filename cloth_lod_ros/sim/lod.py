@@ -45,7 +45,7 @@ from .hierarchy import Hierarchy48, Merge
 from .merge_energy import merge_energy_change, merge_kinetic_change
 
 __all__ = ["HingeMeasures", "hinge_measures", "curvature_estimate", "LodPolicy",
-           "LodDecision"]
+           "LodDecision", "changed_hinges"]
 
 
 def curvature_estimate(theta: np.ndarray, height: np.ndarray) -> np.ndarray:
@@ -161,7 +161,7 @@ class LodPolicy:
                in_contact: np.ndarray | None = None, supported=None,
                evaluation=None, simplify: bool = True,
                lookahead: float = 0.0, layered: np.ndarray | None = None,
-               layered_level: int = 0) -> LodDecision:
+               layered_level: int = 0, recheck: np.ndarray | None = None) -> LodDecision:
         """Choose operations for the active mesh described by the compact arrays.
 
         Args:
@@ -194,11 +194,26 @@ class LodPolicy:
                 cloth (self-collision): no merge touches them (a merge moves
                 the surface, and could push it into the other layer), and
                 triangles with such a corner are refined to ``layered_level``.
+            recheck: for a check right after a decision was carried out
+                (``LodPolicy.apply`` at this ``time``, on this state), that
+                decision's merged edges, ``(k, 2)`` pool ids.  With
+                ``simplify`` off the criterion is then evaluated on the hinges
+                those operations changed only (:func:`changed_hinges`): any
+                other hinge was evaluated by that decision with the same
+                result, and one over the threshold had both triangles refined
+                there unless they are at the maximum level, so it adds no
+                refinement now.  The same decision, for less.
         """
         cfg = self.config
-        measures, deviation = _criterion(elements, self.material.bend_stiffness, x, v,
+        hinges, hinge_tris = elements, elements.hinge_triangles
+        if recheck is not None and not simplify and evaluation is None:
+            changed = changed_hinges(elements, hierarchy, vertex_ids, triangle_ids, time,
+                                     recheck)
+            hinges = _HingeSubset(elements.hinge_vertices[changed],
+                                  elements.hinge_weight[changed])
+            hinge_tris = hinge_tris[changed]
+        measures, deviation = _criterion(hinges, self.material.bend_stiffness, x, v,
                                          evaluation, lookahead)
-        hinge_tris = elements.hinge_triangles
         # Refine: both triangles of each over-curved hinge, most curved first.
         detail = self._detail_triangles(elements, hierarchy, triangle_ids, detail_points,
                                         in_contact)
@@ -357,6 +372,36 @@ class LodPolicy:
                 moved.update(edge)
                 changed.update(outer)
         return len(splits), merges
+
+
+@dataclass
+class _HingeSubset:
+    """Some hinges of an :class:`Elements`: what :func:`_criterion` reads."""
+
+    hinge_vertices: np.ndarray
+    hinge_weight: np.ndarray
+
+
+def changed_hinges(elements: Elements, hierarchy: Hierarchy48, vertex_ids: np.ndarray,
+                   triangle_ids: np.ndarray, time: float, merged) -> np.ndarray:
+    """Compact hinges (increasing ids) that carrying out a decision at ``time`` s
+    may have changed: those with a triangle (re)activated then (born at
+    ``time``: split children and merged parents) or a particle whose velocity
+    one of its merges changed (the ends of ``merged``, ``(k, 2)`` pool ids).
+    Splits and merges move no other particle and change no other velocity,
+    so every other hinge has the corners, positions and velocities it had.
+    A superset is harmless (triangles born at ``time`` in an earlier round)."""
+    born = hierarchy.birth[triangle_ids] == time
+    ht = elements.hinge_triangles
+    changed = born[ht[:, 0]] | born[ht[:, 1]]
+    ends = np.asarray(merged, dtype=np.int64).reshape(-1)
+    if len(ends) and len(vertex_ids):
+        at = np.minimum(np.searchsorted(vertex_ids, ends), len(vertex_ids) - 1)
+        moved = np.zeros(len(vertex_ids), dtype=bool)
+        moved[at[vertex_ids[at] == ends]] = True
+        hv = elements.hinge_vertices
+        changed |= moved[hv[:, 0]] | moved[hv[:, 1]] | moved[hv[:, 2]] | moved[hv[:, 3]]
+    return np.flatnonzero(changed)
 
 
 def _edges(corners) -> list:

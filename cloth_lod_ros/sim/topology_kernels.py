@@ -208,61 +208,47 @@ def _pattern(n, kinds, slots, scratch):
     """linear.SparsePattern's block pattern and block slots.
 
     Args: n vertices; kinds a tuple of ``(e, k)`` int64 element vertex
-    arrays (k <= 7); slots ``(Σ e k²,)`` int64, written: each vertex pair's
-    block slot (``9 · block``); scratch int64 of at least ``4 Σ e k² + n``
-    (contents undefined).  The blocks are the distinct vertex pairs of all
-    elements plus every ``(i, i)``, sorted by row then column (the
-    reference's sorted keys ``i·n + j``).
-
-    Row by row through the vertex -> element-corner incidence (a counting
-    sort of the ``Σ e k`` corners, not of the ``Σ e k²`` pairs: ~4x fewer
-    scattered writes): a row's distinct columns are the vertices of the
-    elements at its corners (a mark per vertex, no n² table), sorted (a few:
-    insertion); then the pairs of those corners, ``(e, i, ·)``, take their
-    blocks from a column -> block table.  The kinds' vertices are first
-    copied into one flat array (a tuple indexed at run time in the loops
-    would cost a reference count each), and each bucket entry holds what
-    its corner's pairs need (its element's start in it, k, its first slot).
+    arrays; slots ``(Σ e k²,)`` int64, written: each vertex pair's block
+    slot (``9 · block``); scratch int64 of at least
+    ``3 Σ e k² + 2n`` (contents undefined; the large temporaries live there,
+    as fresh pages of that size would cost a page fault each).  The blocks are the
+    distinct vertex pairs of all elements plus every ``(i, i)``, sorted by
+    row then column (the reference's sorted keys ``i·n + j``).  Every pair
+    entry goes to its row's bucket (a counting sort); per row, the distinct
+    columns (a mark per vertex, no n² table) are sorted (a few: insertion)
+    and give each bucket entry its block.
 
     Returns ``(ok, indices (blocks,) int32, indptr (n + 1,) int32,
-    diagonal_block (n,) int64)``; ok False when an index is outside ``[0, n)``
-    or an element has more than 7 vertices (the reference builds those).
+    diagonal_block (n,) int64)``; ok False when an index is outside ``[0, n)``.
     """
     count = np.zeros(n + 1, np.int64)
-    corners = 0
+    entries = 0
     for v in kinds:
-        if v.shape[1] > 7:                  # k is packed in 3 bits below
-            return False, np.empty(0, np.int32), np.empty(0, np.int32), count[:0]
-        corners += v.size
-    flat = scratch[:corners]            # every element's vertices, kind after kind
+        for q in range(v.shape[0]):
+            for i in range(v.shape[1]):
+                if v[q, i] < 0 or v[q, i] >= n:
+                    return False, np.empty(0, np.int32), np.empty(0, np.int32), count[:0]
+                count[v[q, i] + 1] += v.shape[1]
+        entries += v.size * v.shape[1]
+    for r in range(n):
+        count[r + 1] += count[r] + 1                # + 1: the diagonal block, last
+    # Bucket position of every pair entry, in (kind, e, i, j) order.
+    fill = count[:n].copy()
+    columns = scratch[:count[n]]        # each pair's column, then its block
+    position = scratch[count[n]:count[n] + entries]
+    found = scratch[count[n] + entries:2 * count[n] + entries]
     g = 0
     for v in kinds:
         for q in range(v.shape[0]):
             for i in range(v.shape[1]):
-                a = v[q, i]
-                if a < 0 or a >= n:
-                    return False, np.empty(0, np.int32), np.empty(0, np.int32), count[:0]
-                count[a + 1] += 1
-                flat[g] = a
-                g += 1
+                r = v[q, i]
+                for j in range(v.shape[1]):
+                    columns[fill[r]] = v[q, j]
+                    position[g] = fill[r]
+                    fill[r] += 1
+                    g += 1
     for r in range(n):
-        count[r + 1] += count[r]
-    # Every corner in its vertex's bucket: (8 x its element's start in flat
-    # + k, the first of its k pair slots).
-    incidence = scratch[corners:3 * corners]
-    found = scratch[3 * corners:]          # the blocks' columns, row by row
-    fill = count[:n].copy()
-    g = pairs = 0
-    for v in kinds:
-        k = v.shape[1]
-        for q in range(v.shape[0]):
-            for i in range(k):
-                p = 2 * fill[flat[g]]
-                incidence[p] = 8 * (g - i) + k
-                incidence[p + 1] = pairs
-                fill[flat[g]] += 1
-                pairs += k
-                g += 1
+        columns[fill[r]] = r
     indptr = np.empty(n + 1, np.int32)
     mark = np.full(n, -1, np.int64)
     where = np.empty(n, np.int64)
@@ -270,36 +256,30 @@ def _pattern(n, kinds, slots, scratch):
     diagonal = np.empty(n, np.int64)
     indptr[0] = blocks = 0
     for r in range(n):
-        mark[r] = r                          # the diagonal block is always there
-        unique[0] = r
-        u = 1
+        u = 0
         for p in range(count[r], count[r + 1]):
-            code = incidence[2 * p]
-            first = code >> 3
-            for j in range(first, first + (code & 7)):
-                col = flat[j]
-                if mark[col] != r:
-                    mark[col] = r
-                    s = u                           # insertion into the sorted few
-                    while s > 0 and unique[s - 1] > col:
-                        unique[s] = unique[s - 1]
-                        s -= 1
-                    unique[s] = col
-                    u += 1
+            c = columns[p]
+            if mark[c] != r:
+                mark[c] = r
+                s = u                               # insertion into the sorted few
+                while s > 0 and unique[s - 1] > c:
+                    unique[s] = unique[s - 1]
+                    s -= 1
+                unique[s] = c
+                u += 1
         for s in range(u):
             found[blocks + s] = unique[s]
             where[unique[s]] = blocks + s
-        diagonal[r] = where[r]
-        # Pair (e, i, j) of a kind at 9·block(e, i, j): the flat data index
-        # of its block's entry (0, 0), in (kind, e, i, j) order (SparsePattern
-        # derives the nine entry slots from it when they are asked for).
         for p in range(count[r], count[r + 1]):
-            code, base = incidence[2 * p], incidence[2 * p + 1]
-            first = code >> 3
-            for j in range(code & 7):
-                slots[base + j] = 9 * where[flat[first + j]]
+            columns[p] = where[columns[p]]
+        diagonal[r] = where[r]
         blocks += u
         indptr[r + 1] = blocks
+    # Pair (e, i, j) of a kind at 9·block(e, i, j): the flat data index of
+    # its block's entry (0, 0), in (kind, e, i, j) order (SparsePattern
+    # derives the nine entry slots from it when they are asked for).
+    for g in range(entries):
+        slots[g] = 9 * columns[position[g]]
     indices = np.empty(blocks, np.int32)
     for s in range(blocks):
         indices[s] = found[s]
@@ -323,7 +303,7 @@ def sparse_pattern(n: int, element_vertices: list[np.ndarray], slots: np.ndarray
     kinds = tuple(np.ascontiguousarray(v) for v in element_vertices)
     if any(v.ndim != 2 or v.dtype != np.int64 for v in kinds):
         return None
-    size = 4 * len(slots) + n
+    size = 3 * len(slots) + 2 * n
     scratch = storage.rank_table(size) if storage is not None else np.empty(size, np.int64)
     ok, indices, indptr, diagonal = _pattern(n, kinds, slots, scratch)
     return (indices, indptr, diagonal) if ok else None
