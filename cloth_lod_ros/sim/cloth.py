@@ -450,7 +450,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
                 layered=layered, layered_level=own.detail_level, recheck=recheck)
             if not decision.refine and not decision.merge:
                 break
-            recheck = np.array(decision.merge, dtype=np.int64).reshape(-1, 2)
+            recheck = decision.merge
             self._sync_hierarchy()
             old_ids = self.vertex_ids
             splits, merges = LodPolicy.apply(h, decision, time, log=self._step_operations)

@@ -161,7 +161,7 @@ class LodPolicy:
                in_contact: np.ndarray | None = None, supported=None,
                evaluation=None, simplify: bool = True,
                lookahead: float = 0.0, layered: np.ndarray | None = None,
-               layered_level: int = 0, recheck: np.ndarray | None = None) -> LodDecision:
+               layered_level: int = 0, recheck=None) -> LodDecision:
         """Choose operations for the active mesh described by the compact arrays.
 
         Args:
@@ -196,7 +196,7 @@ class LodPolicy:
                 triangles with such a corner are refined to ``layered_level``.
             recheck: for a check right after a decision was carried out
                 (``LodPolicy.apply`` at this ``time``, on this state), that
-                decision's merged edges, ``(k, 2)`` pool ids.  With
+                decision's merge edges (``(k, 2)`` pool ids, or its list).  With
                 ``simplify`` off the criterion is then evaluated on the hinges
                 those operations changed only (:func:`changed_hinges`): any
                 other hinge was evaluated by that decision with the same
@@ -283,7 +283,7 @@ class LodPolicy:
             bound = 0.5 * self.material.density * added.area * cfg.max_merge_speed**2
             low = added.total <= bound
             keep = keep[low]
-            merge = [(int(a), int(b)) for a, b in hierarchy.vertex_edge[vertices[keep]]]
+            merge = [(a, b) for a, b in hierarchy.vertex_edge[vertices[keep]].tolist()]
             energy, kinetic, bound = added.total[low], added.kinetic[low], bound[low]
         return LodDecision(refine, merge, energy, kinetic, bound)
 
