@@ -81,14 +81,28 @@ def test_active_mesh_falls_back_on_a_broken_pool():
 def _check_patch(ids, uv, centre, radius, nodes, node):
     kernels.use(False)
     assert compact_kernels.patch_refresh(ids, uv, centre, radius, nodes, node) is None
-    keep0, new0 = patch_refresh(ids, uv, centre, radius, nodes, node)
+    reference = patch_refresh(ids, uv, centre, radius, nodes, node)
     kernels.use(True)
-    keep1, new1 = compact_kernels.patch_refresh(ids, uv, centre, radius, nodes, node)
-    if node is None:
-        assert keep0 is None and keep1 is None
+    compiled = compact_kernels.patch_refresh(ids, uv, centre, radius, nodes, node)
+    for a, b in zip(reference, compiled):
+        if a is None or b is None:
+            assert a is None and b is None
+        else:
+            _same(a, b)
+    # The definition: what stays, what is new, and the pin's compact indices.
+    keep, new, vertices, vertex = reference
+    inside = ids[np.linalg.norm(uv - centre, axis=1) <= radius + 1e-12]
+    stays = np.ones(len(nodes), bool) if node is None else (
+        np.isin(nodes, inside) | (nodes == node))
+    np.testing.assert_array_equal(keep if keep is not None else np.ones(len(nodes), bool),
+                                  stays)
+    np.testing.assert_array_equal(ids[new], np.setdiff1d(inside, nodes[np.isin(nodes, ids)]))
+    if node is not None:
+        held = np.concatenate([nodes[stays], ids[new]])
+        np.testing.assert_array_equal(vertices, np.searchsorted(ids, held))
+        assert vertex == np.searchsorted(ids, node)
     else:
-        _same(keep0, keep1)
-    _same(new0, new1)
+        assert vertices is None and vertex == -1
 
 
 @settings(max_examples=60, deadline=None)

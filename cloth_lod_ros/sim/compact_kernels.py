@@ -99,64 +99,95 @@ def active_mesh(hierarchy):
 
 
 @_jit
-def _patch_refresh(vertex_ids, uv, cu, cv, reach, nodes, node, test_keep, keep, new):
+def _patch_refresh(vertex_ids, uv, cu, cv, reach, nodes, node, is_pin):
     """One holding patch's refresh (held.patch_refresh, the reference).
 
     Args: vertex_ids ``(n,)`` increasing pool ids of the compact particles
     (n > 0); uv ``(n, 2)`` their rest coordinates, m; (cu, cv) the patch
     centre, m; reach its radius + 1e-12, m; nodes ``(k,)`` held pool ids;
-    node the centre's pool id (kept whatever its distance) if test_keep;
-    keep ``(k,)`` bool, written if test_keep: which held nodes stay; new
-    ``(n,)`` int64, written: the compact particles in reach not held yet,
-    increasing.
+    node the centre's pool id (kept whatever its distance) if is_pin.
 
-    Returns ``(count of new, whether every node stays)``.
+    Returns ``(keep (k,) bool, every, new (m,) int64, vertices, vertex)``:
+    which held nodes stay (all for a grasp) and whether all do; the compact
+    particles in reach not held yet, increasing; for a pin the compact
+    indices of the nodes it holds after the refresh (``np.searchsorted`` of
+    the kept nodes, then the new ones) and of its centre (for a grasp an
+    empty array and -1).
     """
     n = vertex_ids.shape[0]
+    k_count = nodes.shape[0]
     near = np.empty(n, np.bool_)
     for i in range(n):
         du = uv[i, 0] - cu
         dv = uv[i, 1] - cv
         near[i] = np.sqrt(du * du + dv * dv) <= reach
-    at = np.empty(nodes.shape[0], np.int64)
+    keep = np.ones(k_count, np.bool_)
+    at = np.empty(k_count, np.int64)          # searchsorted, then -1 if not active
     every = True
-    for k in range(nodes.shape[0]):
-        a = min(np.searchsorted(vertex_ids, nodes[k]), n - 1)
-        at[k] = a if vertex_ids[a] == nodes[k] else -1       # -1: not active
-        if test_keep:
-            keep[k] = (at[k] >= 0 and near[a]) or nodes[k] == node
+    for k in range(k_count):
+        raw = np.searchsorted(vertex_ids, nodes[k])
+        a = min(raw, n - 1)
+        present = vertex_ids[a] == nodes[k]
+        if is_pin:
+            keep[k] = (present and near[a]) or nodes[k] == node
             every = every and keep[k]
+        at[k] = raw
     # A held node that stays is not new.  (One that does not stay is out of
-    # reach or inactive: clearing its flag changes nothing.)
-    for k in range(nodes.shape[0]):
-        if at[k] >= 0:
-            near[at[k]] = False
+    # reach or inactive: clearing its flag changes nothing.)  After every
+    # keep test: a node can be held twice.
+    for k in range(k_count):
+        a = min(at[k], n - 1)
+        if vertex_ids[a] == nodes[k]:
+            near[a] = False
+    count = 0
+    for i in range(n):
+        if near[i]:
+            count += 1
+    new = np.empty(count, np.int64)
     count = 0
     for i in range(n):
         if near[i]:
             new[count] = i
             count += 1
-    return count, every
+    if not is_pin:
+        return keep, every, new, np.empty(0, np.int64), -1
+    kept = 0
+    for k in range(k_count):
+        if keep[k]:
+            kept += 1
+    vertices = np.empty(kept + count, np.int64)
+    j = 0
+    for k in range(k_count):
+        if keep[k]:
+            vertices[j] = at[k]
+            j += 1
+    for i in range(count):              # searchsorted of a compact particle's own id
+        vertices[j + i] = new[i]
+    return keep, every, new, vertices, np.searchsorted(vertex_ids, node)
 
 
 def patch_refresh(vertex_ids: np.ndarray, uv: np.ndarray, centre, radius: float,
                   nodes: np.ndarray, node: int | None):
     """:func:`cloth_lod_ros.sim.held.patch_refresh` by :func:`_patch_refresh`:
-    ``(keep (k,) bool or None, new (m,) int64)``, the same arrays; None when
-    the kernels are off or the inputs are not what they expect."""
+    ``(keep, new, vertices, vertex)``, the same values; None when the kernels
+    are off or the inputs are not what they expect."""
     if (not _kernels.enabled() or len(vertex_ids) == 0 or vertex_ids.dtype != np.int64
             or nodes.dtype != np.int64 or nodes.ndim != 1 or uv.dtype != np.float64
-            or uv.ndim != 2 or uv.shape[1] != 2 or len(uv) != len(vertex_ids)):
+            or uv.ndim != 2 or uv.shape[1] != 2 or len(uv) != len(vertex_ids)
+            or len(centre) != 2):
         return None
-    centre = np.asarray(centre, dtype=np.float64).reshape(2)
-    keep = np.empty(len(nodes), dtype=bool)
-    new = np.empty(len(vertex_ids), dtype=np.int64)
-    count, every = _patch_refresh(np.ascontiguousarray(vertex_ids), np.ascontiguousarray(uv),
-                                  float(centre[0]), float(centre[1]), radius + 1e-12,
-                                  np.ascontiguousarray(nodes),
-                                  -1 if node is None else int(node), node is not None, keep,
-                                  new)
-    return (None if node is None else keep), new[:count].copy()
+    keep, every, new, vertices, vertex = _patch_refresh(
+        _contiguous(vertex_ids), _contiguous(uv), float(centre[0]), float(centre[1]),
+        radius + 1e-12, _contiguous(nodes), -1 if node is None else int(node),
+        node is not None)
+    if node is None:
+        return None, new, None, -1
+    return (None if every else keep), new, vertices, int(vertex)
+
+
+def _contiguous(a: np.ndarray) -> np.ndarray:
+    """``a`` if C-contiguous, else a C-contiguous copy (no call when it is)."""
+    return a if a.flags.c_contiguous else np.ascontiguousarray(a)
 
 
 def warm_up() -> None:

@@ -56,17 +56,20 @@ class HeldInputs:
         """
         x, ids, uv = self.state.positions, self.vertex_ids, self.mesh.uv
         for pin in getattr(self, "pins", ()):
-            pin.vertex = int(np.searchsorted(ids, pin.node))
             if pin.radius > 0 and pin.active(self.state.time):
-                keep, new = _patch_refresh(ids, uv, pin.uv, pin.radius, pin.nodes, pin.node)
-                if not keep.all():
+                keep, new, vertices, pin.vertex = _patch_refresh(ids, uv, pin.uv, pin.radius,
+                                                                 pin.nodes, pin.node)
+                if keep is not None:
                     pin.nodes, pin.offsets = pin.nodes[keep], pin.offsets[keep]
                 if len(new):
                     pin.hold_more(ids[new], x[new], x[pin.vertex])
-            pin.vertices = np.searchsorted(ids, pin.nodes)
+                pin.vertices = vertices
+            else:
+                pin.vertex = int(np.searchsorted(ids, pin.node))
+                pin.vertices = np.searchsorted(ids, pin.nodes)
         for g in getattr(self, "grasps", ()):
             if g.closed and g.width > 0:
-                _, new = _patch_refresh(ids, uv, g.uv, 0.5 * g.width, g.nodes, None)
+                _, new, _, _ = _patch_refresh(ids, uv, g.uv, 0.5 * g.width, g.nodes, None)
                 if len(new):
                     g.hold_more(ids[new], x[new])
 
@@ -240,9 +243,12 @@ def patch_refresh(vertex_ids: np.ndarray, uv: np.ndarray, centre, radius: float,
             None for a grasp (every node is kept).
 
     Returns:
-        ``(keep, new)``: ``(k,)`` bool, which nodes stay held (active and in
-        reach, or the centre; None for a grasp), and ``(m,)`` int64, the
-        compact particles in reach not held yet, increasing.  Masks over the
+        ``(keep, new, vertices, vertex)``: ``(k,)`` bool, which nodes stay
+        held (active and in reach, or the centre), None when all do or for a
+        grasp; ``(m,)`` int64, the compact particles in reach not held yet,
+        increasing; for a pin the compact indices (``np.searchsorted``) of
+        the nodes it holds then (the kept ones, then the new ones) and of
+        its centre particle (None and -1 for a grasp).  Masks over the
         compact particles instead of ``np.isin``/``np.setdiff1d`` (two sorts
         per patch at every topology change): the same sets, in the same order.
     """
@@ -250,12 +256,15 @@ def patch_refresh(vertex_ids: np.ndarray, uv: np.ndarray, centre, radius: float,
     d = uv - centre
     near = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) <= radius + 1e-12
     at, present = _compact_index(vertex_ids, nodes)
-    keep = None
-    if node is not None:
-        keep = (present & near[at]) | (nodes == node)
-        at, present = at[keep], present[keep]
-    near[at[present]] = False          # held already
-    return keep, np.flatnonzero(near)
+    if node is None:
+        near[at[present]] = False          # held already
+        return None, np.flatnonzero(near), None, -1
+    keep = (present & near[at]) | (nodes == node)
+    near[at[keep & present]] = False
+    new = np.flatnonzero(near)
+    kept = nodes[keep]
+    vertices = np.searchsorted(vertex_ids, np.concatenate([kept, vertex_ids[new]]))
+    return (None if keep.all() else keep), new, vertices, int(np.searchsorted(vertex_ids, node))
 
 
 def _patch_refresh(vertex_ids, uv, centre, radius, nodes, node):
