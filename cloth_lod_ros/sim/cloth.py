@@ -43,6 +43,7 @@ from .hierarchy import Hierarchy48
 from .integrator import ImplicitStageSolver
 from .kinematics import ObstacleInputs
 from .lod import LodPolicy
+from .oplog import OperationLog
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
 from .self_contact import SelfCollision
@@ -199,7 +200,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
         self._scripted_closed = {g.name: False for g in self.grasps}
         self.contacts = None
         self._contacts_version = -1
-        self._step_operations: list | None = None   # the LOD operations of the step running
+        self._step_operations: OperationLog | None = None   # the LOD operations of the step running
         warm_up_compiled_code()
 
     def _adopt_hierarchy(self) -> None:
@@ -238,7 +239,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
                 no other exception escapes a step.
         """
         before = self.state.copy()
-        self._step_operations = []
+        self._step_operations = OperationLog()
         try:
             return self._step()
         except SimulationError:
@@ -258,7 +259,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
         if self._step_operations:
             for op in reversed(self._step_operations):
                 self.hierarchy.apply(op.inverse(), before.time)
-            self._step_operations = []
+            self._step_operations = OperationLog()
             self._adopt_hierarchy()
         self.state = before
         self.solver.reset_topology()
