@@ -26,9 +26,17 @@ def _same(a, b):
 
 def _build(mesh, compiled):
     kernels.use(compiled)
+    first = _fresh(mesh)
+    hinges_first = first.hinges()                 # then precompute reads them
+    elements_first = tk.precompute(first)
     mesh = _fresh(mesh)
+    elements = tk.precompute(mesh)                # a new mesh: hinges and all in one call
     hinges = mesh.hinges()
-    elements = tk.precompute(mesh)
+    for name in ("edge", "opposite", "triangles", "is_hypotenuse", "boundary_edges"):
+        _same(getattr(hinges_first, name), getattr(hinges, name))
+    for name in ("triangles", "area", "coef_u", "coef_v", "hinge_vertices", "hinge_weight",
+                 "hinge_triangles", "coef_u_cm", "coef_v_cm", "triangles_cm"):
+        _same(getattr(elements_first, name), getattr(elements, name))
     storage = linear.PatternStorage()
     pattern = linear.SparsePattern(elements.vertex_count,
                                    [elements.triangles, elements.hinge_vertices], storage)

@@ -183,6 +183,23 @@ def _element_data(uv, tri, edge, opposite, hinge_tri, hyp):
     return True, area, coef_u, coef_v, hv, weight
 
 
+@_jit
+def _mesh_elements(uv, tri, n):
+    """:func:`_hinges` and :func:`_element_data` of a mesh in one call (a new
+    topology's whole precompute: one dispatch, no arrays through Python in
+    between).  Returns ``(status, edge, opposite, triangles, is_hypotenuse,
+    border, ok, area, coef_u, coef_v, hinge_vertices, weight)``: _hinges'
+    status and arrays, then _element_data's (``ok`` False and empty arrays
+    when status is not 0)."""
+    status, edge, opposite, tris, hyp, border = _hinges(tri, n)
+    if status != 0:
+        e = np.empty(0)
+        return (status, edge, opposite, tris, hyp, border, False, e, np.empty((0, 3)),
+                np.empty((0, 3)), np.empty((0, 4), np.int64), e)
+    ok, area, coef_u, coef_v, hv, weight = _element_data(uv, tri, edge, opposite, tris, hyp)
+    return status, edge, opposite, tris, hyp, border, ok, area, coef_u, coef_v, hv, weight
+
+
 def precompute(mesh: _mesh48.RestMesh) -> _forces.Elements:
     """:func:`cloth_lod_ros.sim.forces.precompute` (the same arrays bitwise),
     compiled when :func:`~cloth_lod_ros.sim.kernels.enabled`."""
@@ -190,7 +207,20 @@ def precompute(mesh: _mesh48.RestMesh) -> _forces.Elements:
     if (not _kernels.enabled() or uv.dtype != np.float64 or tri.dtype != np.int64
             or uv.ndim != 2 or uv.shape[1] != 2 or tri.ndim != 2 or tri.shape[1] != 3):
         return _forces.precompute(mesh)
-    hinges = mesh.hinges()
+    if "hinges" not in mesh._cache:
+        # A new mesh (every topology change): hinges and element data in one call.
+        (status, edge, opposite, tris, hyp, border, ok, area, coef_u, coef_v, hv,
+         weight) = _mesh_elements(_kernels._as_float(uv), _kernels._as_index(tri),
+                                  mesh.vertex_count)
+        if status == 0 and ok:
+            mesh._cache["hinges"] = _mesh48.Hinges(edge=edge, opposite=opposite,
+                                                   triangles=tris, is_hypotenuse=hyp,
+                                                   boundary_edges=border)
+            return _forces.Elements(
+                triangles=tri.copy(), area=area, coef_u=coef_u, coef_v=coef_v,
+                hinge_vertices=hv, hinge_weight=weight, hinge_triangles=tris,
+                vertex_count=mesh.vertex_count)
+    hinges = mesh.hinges()          # the errors of build_hinges, or its cached arrays
     ok, area, coef_u, coef_v, hv, weight = _element_data(
         np.ascontiguousarray(uv), np.ascontiguousarray(tri),
         *(np.ascontiguousarray(a) for a in (hinges.edge, hinges.opposite,
@@ -464,7 +494,8 @@ def warm_up() -> None:
     if not _kernels.enabled():
         return
     mesh = _mesh48.base_mesh(1.0, 1.0, 1, 1)
-    elements = precompute(mesh)
+    elements = precompute(mesh)                 # a new mesh: _mesh_elements
+    precompute(mesh)                            # its hinges known: _element_data
     size = elements.triangles.size * 3 + elements.hinge_vertices.size * 4
     sparse_pattern(mesh.vertex_count, [elements.triangles, elements.hinge_vertices],
                    np.empty(size, np.int64))
