@@ -435,10 +435,12 @@ class ClothSim(HeldInputs, ObstacleInputs):
             h, time = self.hierarchy, self.state.time
             held_nodes = self._held_nodes()
             detail_points = np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
-            # How many obstacles each particle touches (0, 1 or 2).
-            in_contact = np.zeros(len(self.vertex_ids), dtype=np.int8)
+            # How many obstacles each particle touches (0, 1 or 2); None: none
+            # touches any (decide then skips what it would find nothing in).
+            in_contact = None
             if (self.contacts is not None and len(self.contacts)
                     and self._contacts_version == h.version):     # same compact numbering
+                in_contact = np.zeros(len(self.vertex_ids), dtype=np.int8)
                 in_contact[self.contacts.indices] = 1 + self.contacts.doubled
             layered = (sc.near(self.state.positions, own.detail_distance)
                        if sc is not None else None)
