@@ -237,14 +237,19 @@ class LodPolicy:
 
         # Simplify: split particles all of whose hinges are flat and settled.
         merge, energy, kinetic, bound = [], np.zeros(0), np.zeros(0), np.zeros(0)
-        vertices, kids = np.zeros(0, int), None
-        if simplify:        # Hierarchy48.split_vertices, or its compiled twin
-            found = lod_kernels.split_candidates(hierarchy)
-            vertices, kids = hierarchy.split_vertices() if found is None else found
+        vertices, kids, ok = np.zeros(0, int), None, None
+        if simplify:        # Hierarchy48.split_vertices and tests (a)-(d), or their twins
+            found = lod_kernels.merge_candidates(hierarchy, elements.hinge_vertices, measures,
+                                                 cfg, vertex_ids, time - cfg.min_lifetime, held)
+            if found is None:
+                vertices, kids = hierarchy.split_vertices()
+            else:
+                vertices, kids, ok = found
         if len(vertices):
-            ok = lod_kernels.mergeable(elements.hinge_vertices, measures, cfg, vertex_ids,
-                                       vertices, kids, hierarchy.birth,
-                                       time - cfg.min_lifetime, held, hierarchy.vertex_end)
+            if ok is None:
+                ok = lod_kernels.mergeable(elements.hinge_vertices, measures, cfg, vertex_ids,
+                                           vertices, kids, hierarchy.birth,
+                                           time - cfg.min_lifetime, held, hierarchy.vertex_end)
             if ok is None:                       # the reference (one compiled pass above)
                 unsettled = ((measures.deviation >= cfg.coarsen_threshold)
                              | (np.abs(measures.rate) >= cfg.max_hinge_rate)

@@ -41,7 +41,7 @@ import numpy as np
 from . import kernels as _kernels
 from .hierarchy_kernels import merge_kinetic
 
-__all__ = ["criterion", "refine_order", "split_candidates", "mergeable",
+__all__ = ["criterion", "refine_order", "split_candidates", "mergeable", "merge_candidates",
            "merge_energies", "warm_up"]
 
 _jit = _kernels._jit
@@ -225,6 +225,25 @@ def _split_candidates(vertex_active, vertex_end, vertex_parents, children, tri_a
             vertices[count] = m
             count += 1
     return count
+
+
+@_jit
+def _merge_candidates(vertex_active, vertex_end, vertex_parents, children, tri_active, hv,
+                      deviation, rate, force, coarsen, max_rate, max_force, vertex_ids, birth,
+                      cutoff, held):
+    """:func:`_split_candidates` then :func:`_mergeable` on them, in one call.
+
+    Returns ``(vertices (k,), kids (k, 4), ok (k,) bool, done)``; done False
+    as _mergeable's (ok not valid)."""
+    vertices = np.empty(vertex_end, np.int64)
+    kids = np.empty((vertex_end, 4), np.int64)
+    count = _split_candidates(vertex_active, vertex_end, vertex_parents, children, tri_active,
+                              vertices, kids)
+    vertices, kids = vertices[:count].copy(), kids[:count].copy()
+    ok = np.empty(count, np.bool_)
+    done = _mergeable(hv, deviation, rate, force, coarsen, max_rate, max_force, vertex_ids,
+                      vertices, kids, birth, cutoff, held, vertex_end, ok)
+    return vertices, kids, ok, done
 
 
 @_jit
@@ -466,6 +485,24 @@ def refine_order(deviation: np.ndarray, threshold: float, hinge_triangles: np.nd
     return None if count < 0 else out[:count].tolist()
 
 
+def merge_candidates(hierarchy, hinge_vertices: np.ndarray, measures, config,
+                     vertex_ids: np.ndarray, cutoff: float, held):
+    """:func:`split_candidates` and :func:`mergeable` on them in one compiled
+    call: ``(vertices (k,), kids (k, 4), ok (k,) bool or None)`` (ok None
+    when mergeable would be None: the caller runs the reference tests), or
+    None when the kernels are off.  Arguments as those two functions'."""
+    if not _kernels.enabled():
+        return None
+    h = hierarchy
+    vertices, kids, ok, done = _merge_candidates(
+        h.vertex_active, int(h.vertex_end), _as_index(h.vertex_parents), _as_index(h.children),
+        h.tri_active, _as_index(hinge_vertices).reshape(-1, 4), measures.deviation,
+        measures.rate, measures.bend_force, float(config.coarsen_threshold),
+        float(config.max_hinge_rate), float(config.max_bend_force), _as_index(vertex_ids),
+        _as_float(h.birth), float(cutoff), _as_index(np.asarray(held)).ravel())
+    return vertices, kids, (ok if done else None)
+
+
 def split_candidates(hierarchy):
     """:meth:`Hierarchy48.split_vertices` (``(vertices (k,), children (k, 4))``,
     the reference) by :func:`_split_candidates`; None when the kernels are off."""
@@ -538,6 +575,11 @@ def warm_up() -> None:
     deviation, _, rate, force, _, theta = criterion(elements, 1e-5, x, v, None, 0.01)
     refine_order(deviation, 0.0, elements.hinge_triangles, triangle_ids, h.level, h.max_level,
                  np.zeros(0, dtype=np.int64))
+    merge_candidates(h, elements.hinge_vertices,
+                     SimpleNamespace(deviation=deviation, rate=rate, bend_force=force),
+                     SimpleNamespace(coarsen_threshold=1.0, max_hinge_rate=1.0,
+                                     max_bend_force=1.0),
+                     vertex_ids, -1.0, np.zeros(1, dtype=np.int64))
     vertices, kids = split_candidates(h)
     mergeable(elements.hinge_vertices,
               SimpleNamespace(deviation=deviation, rate=rate, bend_force=force),
