@@ -89,6 +89,12 @@ def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
 
 _WARMED_UP = False
 
+# Read-only empties for adapt's rounds that need no held nodes or grasp points.
+_NO_NODES = np.zeros(0, dtype=np.int64)
+_NO_POINTS = np.zeros((0, 2))
+_NO_NODES.setflags(write=False)
+_NO_POINTS.setflags(write=False)
+
 
 def warm_up_compiled_code() -> float:
     """Load the compiled (numba) kernels a step uses, once per process; seconds spent.
@@ -433,8 +439,11 @@ class ClothSim(HeldInputs, ObstacleInputs):
         recheck = None      # after a round: its merged edges (the next one re-checks)
         for round_index in range(max(1, int(rounds))):
             h, time = self.hierarchy, self.state.time
-            held_nodes = self._held_nodes()
-            detail_points = np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
+            merging = simplify and round_index == 0
+            # Held particles matter to merges only; grasps' points only if any.
+            held_nodes = self._held_nodes() if merging else _NO_NODES
+            detail_points = (np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
+                             if self.grasps else _NO_POINTS)
             # How many obstacles each particle touches (0, 1 or 2); None: none
             # touches any (decide then skips what it would find nothing in).
             in_contact = None
@@ -449,7 +458,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
                 self.state.velocities, self.masses, time, held_nodes,
                 detail_points=detail_points, in_contact=in_contact,
                 supported=self._merge_would_sink if self.obstacles else None,
-                simplify=simplify and round_index == 0, lookahead=lookahead,
+                simplify=merging, lookahead=lookahead,
                 layered=layered, layered_level=own.detail_level, recheck=recheck)
             if not decision.refine and not decision.merge:
                 break
