@@ -293,3 +293,29 @@ def test_refine_order_is_the_reference(seed, count, detail_count, threshold):
     kernels.use(True)
     assert lod_kernels.refine_order(deviation, threshold, hinge_tris, triangle_ids, level,
                                     max_level, detail) == refine
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_merge_candidates_are_the_candidates_and_their_tests(seed):
+    """The one-call twin (lod_kernels.merge_candidates) of split_candidates and
+    mergeable, which LodPolicy.decide uses: the same arrays."""
+    sim = _perturbed(seed, 0.02, 1e-4, half=True)
+    h, config = sim.hierarchy, sim.scene.lod
+    kernels.use(True)
+    m, _ = lod._criterion(sim.elements, 3e-5, sim.positions, sim.velocities)
+    vertices, kids = h.split_vertices()
+    held = vertices[::5]
+    cutoff = float(np.median(h.birth[h.active_triangles()]))
+    ok = lod_kernels.mergeable(sim.elements.hinge_vertices, m, config, sim.vertex_ids,
+                               vertices, kids, h.birth, cutoff, held, h.vertex_end)
+    twin = lod_kernels.merge_candidates(h, sim.elements.hinge_vertices, m, config,
+                                        sim.vertex_ids, cutoff, held)
+    for a, b in zip((vertices, kids, ok), twin):
+        _same(a, b)
+    assert ok.any() and not ok.all()
+    # An id the tests reject: no ok, as mergeable's None.
+    assert lod_kernels.merge_candidates(h, sim.elements.hinge_vertices, m, config,
+                                        sim.vertex_ids, cutoff, np.array([h.vertex_end]))[2] is None
+    kernels.use(False)
+    assert lod_kernels.merge_candidates(h, sim.elements.hinge_vertices, m, config,
+                                        sim.vertex_ids, cutoff, held) is None

@@ -26,17 +26,32 @@ def _same(a, b):
 
 def _build(mesh, compiled):
     kernels.use(compiled)
+    first = _fresh(mesh)
+    hinges_first = first.hinges()                 # then precompute reads them
+    elements_first = tk.precompute(first)
     mesh = _fresh(mesh)
+    elements = tk.precompute(mesh)                # a new mesh: hinges and all in one call
     hinges = mesh.hinges()
-    elements = tk.precompute(mesh)
+    for name in ("edge", "opposite", "triangles", "is_hypotenuse", "boundary_edges"):
+        _same(getattr(hinges_first, name), getattr(hinges, name))
+    for name in ("triangles", "area", "coef_u", "coef_v", "hinge_vertices", "hinge_weight",
+                 "hinge_triangles", "coef_u_cm", "coef_v_cm", "triangles_cm"):
+        _same(getattr(elements_first, name), getattr(elements, name))
     storage = linear.PatternStorage()
     pattern = linear.SparsePattern(elements.vertex_count,
                                    [elements.triangles, elements.hinge_vertices], storage)
-    return hinges, elements, pattern
+    # What a solver builds: the hinges' pairs from their triangles' when compiled.
+    from_triangles = linear.SparsePattern(elements.vertex_count,
+                                          [elements.triangles, elements.hinge_vertices],
+                                          hinge_triangles=elements.hinge_triangles)
+    return hinges, elements, pattern, from_triangles
 
 
 def _check(mesh):
-    (h0, e0, p0), (h1, e1, p1) = _build(mesh, False), _build(mesh, True)
+    (h0, e0, p0, q0), (h1, e1, p1, q1) = _build(mesh, False), _build(mesh, True)
+    for name in ("indices", "indptr", "diagonal_block", "_all_slots"):
+        _same(getattr(p0, name), getattr(q0, name))
+        _same(getattr(p0, name), getattr(q1, name))
     for name in ("edge", "opposite", "triangles", "is_hypotenuse", "boundary_edges"):
         _same(getattr(h0, name), getattr(h1, name))
     for name in ("triangles", "area", "coef_u", "coef_v", "hinge_vertices", "hinge_weight",
@@ -106,6 +121,22 @@ def test_errors_and_fallbacks_are_the_reference_ones():
     hinges = tk.build_hinges(np.array([[0, 1, 2]], dtype=np.int32), 3)   # other dtype
     reference = mesh48.build_hinges(np.array([[0, 1, 2]]), 3)
     _same(hinges.boundary_edges, reference.boundary_edges)
+
+
+def test_pattern_from_triangles_falls_back_when_hinges_do_not_fit():
+    kernels.use(True)
+    elements = tk.precompute(refine_uniform(base_mesh(1.0, 1.0, 2, 2), 2))
+    kinds = [elements.triangles, elements.hinge_vertices]
+    reference = linear.SparsePattern(elements.vertex_count, kinds)
+    for broken in (elements.hinge_triangles[:, ::-1], elements.hinge_triangles + 10**6,
+                   np.zeros_like(elements.hinge_triangles)):
+        slots = np.empty(len(reference._owned), np.int64)
+        assert tk._mesh_pattern(elements.vertex_count, kinds[0], kinds[1],
+                                np.ascontiguousarray(broken), slots,
+                                np.empty(10**5, np.int64))[0] is False
+        pattern = linear.SparsePattern(elements.vertex_count, kinds, hinge_triangles=broken)
+        for name in ("indices", "indptr", "diagonal_block", "_all_slots"):
+            _same(getattr(reference, name), getattr(pattern, name))
 
 
 def test_numpy_switch_uses_the_reference(monkeypatch):

@@ -33,8 +33,8 @@ import numpy as np
 from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
 from .contact import nearest_surface
 from .forces import Elements, air_power
-from . import (hierarchy_kernels, kernels, lod_kernels, multigrid_kernels, projection_kernels,
-               self_kernels, topology_kernels)
+from . import (compact_kernels, hierarchy_kernels, kernels, lod_kernels, multigrid_kernels,
+               projection_kernels, self_kernels, topology_kernels)
 from .topology_kernels import precompute   # compiled when numba is there
 from .kernels import elastic_energies   # compiled when numba is there
 from .grasps import Grasp
@@ -43,6 +43,7 @@ from .hierarchy import Hierarchy48
 from .integrator import ImplicitStageSolver
 from .kinematics import ObstacleInputs
 from .lod import LodPolicy
+from .oplog import OperationLog
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
 from .self_contact import SelfCollision
@@ -89,6 +90,12 @@ def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
 
 _WARMED_UP = False
 
+# Read-only empties for adapt's rounds that need no held nodes or grasp points.
+_NO_NODES = np.zeros(0, dtype=np.int64)
+_NO_POINTS = np.zeros((0, 2))
+_NO_NODES.setflags(write=False)
+_NO_POINTS.setflags(write=False)
+
 
 def warm_up_compiled_code() -> float:
     """Load the compiled (numba) kernels a step uses, once per process; seconds spent.
@@ -115,6 +122,7 @@ def warm_up_compiled_code() -> float:
         projection_kernels.warm_up()  # sliding contacts' projection, if the tiny step had none
         lod_kernels.warm_up()       # the LOD criterion's, whether or not the tiny step merged
         multigrid_kernels.warm_up()  # the V-cycle a large cloth's solves use
+        compact_kernels.warm_up()   # a topology change's compact mesh and held patches
         if "block_ldl" in available_methods():
             from . import trailing_ldl   # imports numba, like block_ldl
             trailing_ldl.warm_up()  # contact rounds on one factorisation
@@ -202,7 +210,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
         self._scripted_closed = {g.name: False for g in self.grasps}
         self.contacts = None
         self._contacts_version = -1
-        self._step_operations: list | None = None   # the LOD operations of the step running
+        self._step_operations: OperationLog | None = None   # the LOD operations of the step running
         warm_up_compiled_code()
 
     def _adopt_hierarchy(self) -> None:
@@ -210,9 +218,9 @@ class ClothSim(HeldInputs, ObstacleInputs):
         h = self.hierarchy
         self.mesh, self.vertex_ids, self.triangle_ids = h.active_mesh()
         self.elements = precompute(self.mesh)
-        self.masses = h.masses[self.vertex_ids]
-        self.state = ClothState(h.x[self.vertex_ids].copy(), h.v[self.vertex_ids].copy(),
-                                self.state.time)
+        # (h.masses is the whole pool's; a gather copies, no .copy() needed)
+        self.masses = h.mass_units[self.vertex_ids] * h.unit_mass
+        self.state = ClothState(h.x[self.vertex_ids], h.v[self.vertex_ids], self.state.time)
         # The sparsity pattern is built by the first solve on this topology:
         # a LOD pass that refines in rounds adopts several meshes in a row.
         levels = self.mesh.levels
@@ -241,7 +249,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
                 no other exception escapes a step.
         """
         before = self.state.copy()
-        self._step_operations = []
+        self._step_operations = OperationLog()
         try:
             return self._step()
         except SimulationError:
@@ -261,7 +269,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
         if self._step_operations:
             for op in reversed(self._step_operations):
                 self.hierarchy.apply(op.inverse(), before.time)
-            self._step_operations = []
+            self._step_operations = OperationLog()
             self._adopt_hierarchy()
         self.state = before
         self.solver.reset_topology()
@@ -432,14 +440,20 @@ class ClothSim(HeldInputs, ObstacleInputs):
         lookahead = (self.scene.lod.check_interval - 1) * self.time_step
         sc, own = self.self_collision, self.scene.self_collision
         total_splits = total_merges = 0
+        recheck = None      # after a round: its merged edges (the next one re-checks)
         for round_index in range(max(1, int(rounds))):
             h, time = self.hierarchy, self.state.time
-            held_nodes = self._held_nodes()
-            detail_points = np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
-            # How many obstacles each particle touches (0, 1 or 2).
-            in_contact = np.zeros(len(self.vertex_ids), dtype=np.int8)
+            merging = simplify and round_index == 0
+            # Held particles matter to merges only; grasps' points only if any.
+            held_nodes = self._held_nodes() if merging else _NO_NODES
+            detail_points = (np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
+                             if self.grasps else _NO_POINTS)
+            # How many obstacles each particle touches (0, 1 or 2); None: none
+            # touches any (decide then skips what it would find nothing in).
+            in_contact = None
             if (self.contacts is not None and len(self.contacts)
                     and self._contacts_version == h.version):     # same compact numbering
+                in_contact = np.zeros(len(self.vertex_ids), dtype=np.int8)
                 in_contact[self.contacts.indices] = 1 + self.contacts.doubled
             layered = (sc.near(self.state.positions, own.detail_distance)
                        if sc is not None else None)
@@ -448,10 +462,11 @@ class ClothSim(HeldInputs, ObstacleInputs):
                 self.state.velocities, self.masses, time, held_nodes,
                 detail_points=detail_points, in_contact=in_contact,
                 supported=self._merge_would_sink if self.obstacles else None,
-                simplify=simplify and round_index == 0, lookahead=lookahead,
-                layered=layered, layered_level=own.detail_level)
+                simplify=merging, lookahead=lookahead,
+                layered=layered, layered_level=own.detail_level, recheck=recheck)
             if not decision.refine and not decision.merge:
                 break
+            recheck = decision.merge
             self._sync_hierarchy()
             old_ids = self.vertex_ids
             splits, merges = LodPolicy.apply(h, decision, time, log=self._step_operations)

@@ -17,12 +17,13 @@ import logging
 import numpy as np
 from scipy.spatial import cKDTree
 
+from . import compact_kernels as _compact
 from .grasps import Grasp
 from .mesh48 import uniform_vertices_within
 from .metrics import PointLocator
 from .pins import Pin
 
-__all__ = ["HeldInputs"]
+__all__ = ["HeldInputs", "patch_refresh"]
 
 log = logging.getLogger("cloth_lod_ros.sim.cloth")
 
@@ -50,31 +51,25 @@ class HeldInputs:
         a coarse mesh would hold only its first few particles and let the
         refined cloth between them flap).  The policy never merges a held
         particle; a scripted merge (``apply_mesh_operations``) may, and the
-        patch lets it go.  Masks over the compact particles instead of
-        ``np.isin``/``np.setdiff1d`` (two sorts per patch at every topology
-        change): the same sets, in the same (increasing) order.
+        patch lets it go.  Each patch by :func:`patch_refresh` (one compiled
+        pass when the kernels are on).
         """
-        x, ids = self.state.positions, self.vertex_ids
+        x, ids, uv = self.state.positions, self.vertex_ids, self.mesh.uv
         for pin in getattr(self, "pins", ()):
-            pin.vertex = int(np.searchsorted(ids, pin.node))
             if pin.radius > 0 and pin.active(self.state.time):
-                near = self._within_mask(pin.uv, pin.radius)
-                at, present = _compact_index(ids, pin.nodes)
-                keep = (present & near[at]) | (pin.nodes == pin.node)
-                if not keep.all():
+                keep, new, vertices, pin.vertex = _patch_refresh(ids, uv, pin.uv, pin.radius,
+                                                                 pin.nodes, pin.node)
+                if keep is not None:
                     pin.nodes, pin.offsets = pin.nodes[keep], pin.offsets[keep]
-                    at, present = at[keep], present[keep]
-                near[at[present]] = False          # held already
-                new = np.flatnonzero(near)
                 if len(new):
                     pin.hold_more(ids[new], x[new], x[pin.vertex])
-            pin.vertices = np.searchsorted(ids, pin.nodes)
+                pin.vertices = vertices
+            else:
+                pin.vertex = int(np.searchsorted(ids, pin.node))
+                pin.vertices = np.searchsorted(ids, pin.nodes)
         for g in getattr(self, "grasps", ()):
             if g.closed and g.width > 0:
-                near = self._within_mask(g.uv, 0.5 * g.width)
-                at, present = _compact_index(ids, g.nodes)
-                near[at[present]] = False
-                new = np.flatnonzero(near)
+                _, new, _, _ = _patch_refresh(ids, uv, g.uv, 0.5 * g.width, g.nodes, None)
                 if len(new):
                     g.hold_more(ids[new], x[new])
 
@@ -157,10 +152,12 @@ class HeldInputs:
         return np.concatenate(indices), np.concatenate(targets)
 
     def _held_nodes(self) -> np.ndarray:
+        """Pool ids of the particles pins and grasps hold now, ``(k,)`` int64
+        (patch after patch; one concatenation, not a Python int per node)."""
         time = self.state.time
-        nodes = [int(n) for p in self.pins if p.active(time) for n in p.nodes]
-        nodes += [int(n) for g in self.grasps if g.closed for n in g.nodes]
-        return np.array(nodes, dtype=np.int64)
+        parts = [np.zeros(0, dtype=np.int64)] + [p.nodes for p in self.pins if p.active(time)]
+        parts += [g.nodes for g in self.grasps if g.closed]
+        return np.concatenate(parts).astype(np.int64, copy=False)
 
     # -- grasps -------------------------------------------------------------
     def grasp(self, name: str) -> Grasp:
@@ -230,6 +227,51 @@ class HeldInputs:
             if want != self._scripted_closed[g.name]:
                 self._scripted_closed[g.name] = want
                 (self.close_grasp if want else self.open_grasp)(g.name)
+
+
+def patch_refresh(vertex_ids: np.ndarray, uv: np.ndarray, centre, radius: float,
+                  nodes: np.ndarray, node: int | None):
+    """What a holding patch keeps and takes after a topology change (the
+    reference of :func:`cloth_lod_ros.sim.compact_kernels.patch_refresh`).
+
+    Args:
+        vertex_ids: ``(n,)`` increasing pool ids of the compact particles.
+        uv: ``(n, 2)`` their rest coordinates, m.
+        centre: ``(2,)`` the patch's material point, m; radius: m.
+        nodes: ``(k,)`` pool ids it holds.
+        node: a pin's centre particle (pool id; kept whatever happens), or
+            None for a grasp (every node is kept).
+
+    Returns:
+        ``(keep, new, vertices, vertex)``: ``(k,)`` bool, which nodes stay
+        held (active and in reach, or the centre), None when all do or for a
+        grasp; ``(m,)`` int64, the compact particles in reach not held yet,
+        increasing; for a pin the compact indices (``np.searchsorted``) of
+        the nodes it holds then (the kept ones, then the new ones) and of
+        its centre particle (None and -1 for a grasp).  Masks over the
+        compact particles instead of ``np.isin``/``np.setdiff1d`` (two sorts
+        per patch at every topology change): the same sets, in the same order.
+    """
+    # |d| as np.linalg.norm(d, axis=1) computes it (HeldInputs._within_mask).
+    d = uv - centre
+    near = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) <= radius + 1e-12
+    at, present = _compact_index(vertex_ids, nodes)
+    if node is None:
+        near[at[present]] = False          # held already
+        return None, np.flatnonzero(near), None, -1
+    keep = (present & near[at]) | (nodes == node)
+    near[at[keep & present]] = False
+    new = np.flatnonzero(near)
+    kept = nodes[keep]
+    vertices = np.searchsorted(vertex_ids, np.concatenate([kept, vertex_ids[new]]))
+    return (None if keep.all() else keep), new, vertices, int(np.searchsorted(vertex_ids, node))
+
+
+def _patch_refresh(vertex_ids, uv, centre, radius, nodes, node):
+    """:func:`patch_refresh`, compiled when the kernels are on."""
+    compiled = _compact.patch_refresh(vertex_ids, uv, centre, radius, nodes, node)
+    return compiled if compiled is not None else patch_refresh(vertex_ids, uv, centre,
+                                                               radius, nodes, node)
 
 
 def _compact_index(vertex_ids: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

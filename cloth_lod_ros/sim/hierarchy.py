@@ -47,8 +47,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import compact_kernels as _compact
 from . import hierarchy_kernels as _compiled
 from .mesh48 import MeshError, RestMesh
+from .oplog import OperationLog
 
 __all__ = ["Split", "Merge", "Hierarchy48", "merge_velocity_change"]
 
@@ -329,6 +331,9 @@ class Hierarchy48:
             vertex ``vertex_ids[i]``, compact triangle ``k`` is pool triangle
             ``triangle_ids[k]`` (both increasing).
         """
+        compiled = _compact.active_mesh(self)      # one pass, the same arrays
+        if compiled is not None:
+            return compiled
         vids = self.active_vertices()
         tids = self.active_triangles()
         remap = np.full(self.vertex_end, -1, dtype=np.int64)
@@ -559,8 +564,11 @@ class Hierarchy48:
         if status == _compiled.OUT_OF_RANGE:
             return None
         if log is not None:
-            log.extend(Split((a, b)) if kind == _compiled.SPLIT else Merge((a, b))
-                       for kind, a, b in ops[:complete].tolist())
+            if isinstance(log, OperationLog):       # made into values only if read
+                log.add_raw(ops[:complete])
+            else:
+                log.extend(Split((a, b)) if kind == _compiled.SPLIT else Merge((a, b))
+                           for kind, a, b in ops[:complete].tolist())
         if status != _compiled.OK:
             raise MeshError(_FAILURES[status].format(edge=edge))
         return ops, splits

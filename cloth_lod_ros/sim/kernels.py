@@ -384,7 +384,19 @@ def _add_diagonal(diagonal_block, diagonal, data):
 
 
 def _as_index(a: np.ndarray) -> np.ndarray:
+    """``np.ascontiguousarray(a, dtype=np.int64)``; ``a`` itself without a numpy
+    call when it is that already (the kernels' wrappers make thousands of
+    these calls per second of an adaptive run)."""
+    if type(a) is np.ndarray and a.dtype == np.int64 and a.ndim and a.flags.c_contiguous:
+        return a
     return np.ascontiguousarray(a, dtype=np.int64)
+
+
+def _as_float(a: np.ndarray) -> np.ndarray:
+    """``np.ascontiguousarray(a, dtype=np.float64)``, as :func:`_as_index`."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.ndim and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 def evaluate(elements, material, x: np.ndarray, v: np.ndarray,

@@ -45,7 +45,7 @@ from .hierarchy import Hierarchy48, Merge
 from .merge_energy import merge_energy_change, merge_kinetic_change
 
 __all__ = ["HingeMeasures", "hinge_measures", "curvature_estimate", "LodPolicy",
-           "LodDecision"]
+           "LodDecision", "changed_hinges"]
 
 
 def curvature_estimate(theta: np.ndarray, height: np.ndarray) -> np.ndarray:
@@ -161,7 +161,7 @@ class LodPolicy:
                in_contact: np.ndarray | None = None, supported=None,
                evaluation=None, simplify: bool = True,
                lookahead: float = 0.0, layered: np.ndarray | None = None,
-               layered_level: int = 0) -> LodDecision:
+               layered_level: int = 0, recheck=None) -> LodDecision:
         """Choose operations for the active mesh described by the compact arrays.
 
         Args:
@@ -194,11 +194,26 @@ class LodPolicy:
                 cloth (self-collision): no merge touches them (a merge moves
                 the surface, and could push it into the other layer), and
                 triangles with such a corner are refined to ``layered_level``.
+            recheck: for a check right after a decision was carried out
+                (``LodPolicy.apply`` at this ``time``, on this state), that
+                decision's merge edges (``(k, 2)`` pool ids, or its list).  With
+                ``simplify`` off the criterion is then evaluated on the hinges
+                those operations changed only (:func:`changed_hinges`): any
+                other hinge was evaluated by that decision with the same
+                result, and one over the threshold had both triangles refined
+                there unless they are at the maximum level, so it adds no
+                refinement now.  The same decision, for less.
         """
         cfg = self.config
-        measures, deviation = _criterion(elements, self.material.bend_stiffness, x, v,
+        hinges, hinge_tris = elements, elements.hinge_triangles
+        if recheck is not None and not simplify and evaluation is None:
+            changed = changed_hinges(elements, hierarchy, vertex_ids, triangle_ids, time,
+                                     recheck)
+            hinges = _HingeSubset(elements.hinge_vertices[changed],
+                                  elements.hinge_weight[changed])
+            hinge_tris = hinge_tris[changed]
+        measures, deviation = _criterion(hinges, self.material.bend_stiffness, x, v,
                                          evaluation, lookahead)
-        hinge_tris = elements.hinge_triangles
         # Refine: both triangles of each over-curved hinge, most curved first.
         detail = self._detail_triangles(elements, hierarchy, triangle_ids, detail_points,
                                         in_contact)
@@ -222,14 +237,19 @@ class LodPolicy:
 
         # Simplify: split particles all of whose hinges are flat and settled.
         merge, energy, kinetic, bound = [], np.zeros(0), np.zeros(0), np.zeros(0)
-        vertices, kids = np.zeros(0, int), None
-        if simplify:        # Hierarchy48.split_vertices, or its compiled twin
-            found = lod_kernels.split_candidates(hierarchy)
-            vertices, kids = hierarchy.split_vertices() if found is None else found
+        vertices, kids, ok = np.zeros(0, int), None, None
+        if simplify:        # Hierarchy48.split_vertices and tests (a)-(d), or their twins
+            found = lod_kernels.merge_candidates(hierarchy, elements.hinge_vertices, measures,
+                                                 cfg, vertex_ids, time - cfg.min_lifetime, held)
+            if found is None:
+                vertices, kids = hierarchy.split_vertices()
+            else:
+                vertices, kids, ok = found
         if len(vertices):
-            ok = lod_kernels.mergeable(elements.hinge_vertices, measures, cfg, vertex_ids,
-                                       vertices, kids, hierarchy.birth,
-                                       time - cfg.min_lifetime, held, hierarchy.vertex_end)
+            if ok is None:
+                ok = lod_kernels.mergeable(elements.hinge_vertices, measures, cfg, vertex_ids,
+                                           vertices, kids, hierarchy.birth,
+                                           time - cfg.min_lifetime, held, hierarchy.vertex_end)
             if ok is None:                       # the reference (one compiled pass above)
                 unsettled = ((measures.deviation >= cfg.coarsen_threshold)
                              | (np.abs(measures.rate) >= cfg.max_hinge_rate)
@@ -268,7 +288,7 @@ class LodPolicy:
             bound = 0.5 * self.material.density * added.area * cfg.max_merge_speed**2
             low = added.total <= bound
             keep = keep[low]
-            merge = [(int(a), int(b)) for a, b in hierarchy.vertex_edge[vertices[keep]]]
+            merge = [(a, b) for a, b in hierarchy.vertex_edge[vertices[keep]].tolist()]
             energy, kinetic, bound = added.total[low], added.kinetic[low], bound[low]
         return LodDecision(refine, merge, energy, kinetic, bound)
 
@@ -357,6 +377,36 @@ class LodPolicy:
                 moved.update(edge)
                 changed.update(outer)
         return len(splits), merges
+
+
+@dataclass
+class _HingeSubset:
+    """Some hinges of an :class:`Elements`: what :func:`_criterion` reads."""
+
+    hinge_vertices: np.ndarray
+    hinge_weight: np.ndarray
+
+
+def changed_hinges(elements: Elements, hierarchy: Hierarchy48, vertex_ids: np.ndarray,
+                   triangle_ids: np.ndarray, time: float, merged) -> np.ndarray:
+    """Compact hinges (increasing ids) that carrying out a decision at ``time`` s
+    may have changed: those with a triangle (re)activated then (born at
+    ``time``: split children and merged parents) or a particle whose velocity
+    one of its merges changed (the ends of ``merged``, ``(k, 2)`` pool ids).
+    Splits and merges move no other particle and change no other velocity,
+    so every other hinge has the corners, positions and velocities it had.
+    A superset is harmless (triangles born at ``time`` in an earlier round)."""
+    born = hierarchy.birth[triangle_ids] == time
+    ht = elements.hinge_triangles
+    changed = born[ht[:, 0]] | born[ht[:, 1]]
+    ends = np.asarray(merged, dtype=np.int64).reshape(-1)
+    if len(ends) and len(vertex_ids):
+        at = np.minimum(np.searchsorted(vertex_ids, ends), len(vertex_ids) - 1)
+        moved = np.zeros(len(vertex_ids), dtype=bool)
+        moved[at[vertex_ids[at] == ends]] = True
+        hv = elements.hinge_vertices
+        changed |= moved[hv[:, 0]] | moved[hv[:, 1]] | moved[hv[:, 2]] | moved[hv[:, 3]]
+    return np.flatnonzero(changed)
 
 
 def _edges(corners) -> list:

@@ -41,12 +41,13 @@ import numpy as np
 from . import kernels as _kernels
 from .hierarchy_kernels import merge_kinetic
 
-__all__ = ["criterion", "refine_order", "split_candidates", "mergeable",
+__all__ = ["criterion", "refine_order", "split_candidates", "mergeable", "merge_candidates",
            "merge_energies", "warm_up"]
 
 _jit = _kernels._jit
 _hinge_geometry = _kernels._hinge_geometry
 _as_index = _kernels._as_index
+_as_float = _kernels._as_float
 
 
 @_jit
@@ -224,6 +225,25 @@ def _split_candidates(vertex_active, vertex_end, vertex_parents, children, tri_a
             vertices[count] = m
             count += 1
     return count
+
+
+@_jit
+def _merge_candidates(vertex_active, vertex_end, vertex_parents, children, tri_active, hv,
+                      deviation, rate, force, coarsen, max_rate, max_force, vertex_ids, birth,
+                      cutoff, held):
+    """:func:`_split_candidates` then :func:`_mergeable` on them, in one call.
+
+    Returns ``(vertices (k,), kids (k, 4), ok (k,) bool, done)``; done False
+    as _mergeable's (ok not valid)."""
+    vertices = np.empty(vertex_end, np.int64)
+    kids = np.empty((vertex_end, 4), np.int64)
+    count = _split_candidates(vertex_active, vertex_end, vertex_parents, children, tri_active,
+                              vertices, kids)
+    vertices, kids = vertices[:count].copy(), kids[:count].copy()
+    ok = np.empty(count, np.bool_)
+    done = _mergeable(hv, deviation, rate, force, coarsen, max_rate, max_force, vertex_ids,
+                      vertices, kids, birth, cutoff, held, vertex_end, ok)
+    return vertices, kids, ok, done
 
 
 @_jit
@@ -406,14 +426,14 @@ def criterion(elements, bend_stiffness: float, x: np.ndarray, v: np.ndarray,
     count = len(hv)
     x = np.empty((0, 3)) if x is None else x        # only with an evaluation
     if evaluation is not None:
-        theta = np.ascontiguousarray(evaluation.hinge_angle, dtype=np.float64)
-        grad = np.ascontiguousarray(evaluation.hinge_gradient, dtype=np.float64)
+        theta = _as_float(evaluation.hinge_angle)
+        grad = _as_float(evaluation.hinge_gradient)
     else:
         theta, grad = np.empty(count), np.empty((0, 4, 3))
     out = [np.empty(count) for _ in range(5)]
-    _criterion(theta, grad, evaluation is not None, np.ascontiguousarray(x, dtype=np.float64),
-               hv, np.ascontiguousarray(v, dtype=np.float64),
-               np.ascontiguousarray(elements.hinge_weight, dtype=np.float64),
+    _criterion(theta, grad, evaluation is not None, _as_float(x),
+               hv, _as_float(v),
+               _as_float(elements.hinge_weight),
                float(bend_stiffness), float(lookahead), *out)
     return (*out, theta)
 
@@ -443,7 +463,7 @@ def mergeable(hinge_vertices: np.ndarray, measures, config, vertex_ids: np.ndarr
                       measures.rate, measures.bend_force, float(config.coarsen_threshold),
                       float(config.max_hinge_rate), float(config.max_bend_force),
                       _as_index(vertex_ids), _as_index(vertices), _as_index(kids),
-                      np.ascontiguousarray(birth, dtype=np.float64), float(cutoff),
+                      _as_float(birth), float(cutoff),
                       _as_index(np.asarray(held)).ravel(), int(vertex_end), ok)
     return ok if done else None
 
@@ -459,10 +479,28 @@ def refine_order(deviation: np.ndarray, threshold: float, hinge_triangles: np.nd
         return None
     detail = _as_index(detail).ravel()
     out = np.empty(2 * len(deviation) + len(detail), dtype=np.int64)
-    count = _refine_order(np.ascontiguousarray(deviation, dtype=np.float64), float(threshold),
+    count = _refine_order(_as_float(deviation), float(threshold),
                           _as_index(hinge_triangles).reshape(-1, 2), _as_index(triangle_ids),
                           _as_index(level), int(max_level), detail, out)
     return None if count < 0 else out[:count].tolist()
+
+
+def merge_candidates(hierarchy, hinge_vertices: np.ndarray, measures, config,
+                     vertex_ids: np.ndarray, cutoff: float, held):
+    """:func:`split_candidates` and :func:`mergeable` on them in one compiled
+    call: ``(vertices (k,), kids (k, 4), ok (k,) bool or None)`` (ok None
+    when mergeable would be None: the caller runs the reference tests), or
+    None when the kernels are off.  Arguments as those two functions'."""
+    if not _kernels.enabled():
+        return None
+    h = hierarchy
+    vertices, kids, ok, done = _merge_candidates(
+        h.vertex_active, int(h.vertex_end), _as_index(h.vertex_parents), _as_index(h.children),
+        h.tri_active, _as_index(hinge_vertices).reshape(-1, 4), measures.deviation,
+        measures.rate, measures.bend_force, float(config.coarsen_threshold),
+        float(config.max_hinge_rate), float(config.max_bend_force), _as_index(vertex_ids),
+        _as_float(h.birth), float(cutoff), _as_index(np.asarray(held)).ravel())
+    return vertices, kids, (ok if done else None)
 
 
 def split_candidates(hierarchy):
@@ -487,24 +525,24 @@ def merge_energies(hierarchy, elements, vertex_ids, triangle_ids, vertices, x, v
     if not _kernels.enabled():
         return None
     h = hierarchy
-    x = np.ascontiguousarray(x, dtype=np.float64)
+    x = _as_float(x)
     hv = _as_index(elements.hinge_vertices).reshape(-1, 4)
     theta = (_kernels.hinge_angles(x, hv) if hinge_angle is None
-             else np.ascontiguousarray(hinge_angle, dtype=np.float64))
+             else _as_float(hinge_angle))
     k = len(vertices)
     delta, kinetic, area = np.empty(k), np.empty(k), np.empty(k)
     mid, offset = np.empty(k, dtype=np.int64), np.empty((k, 3))
     ok = _merge_energies(
         _as_index(vertices), _as_index(vertex_ids), _as_index(triangle_ids),
         _as_index(h.vertex_edge), _as_index(h.vertex_parents), _as_index(h.tri),
-        _as_index(h.children), np.ascontiguousarray(h.uv, dtype=np.float64),
-        _as_index(elements.triangles), np.ascontiguousarray(elements.coef_u, dtype=np.float64),
-        np.ascontiguousarray(elements.coef_v, dtype=np.float64),
-        np.ascontiguousarray(elements.area, dtype=np.float64), hv,
+        _as_index(h.children), _as_float(h.uv),
+        _as_index(elements.triangles), _as_float(elements.coef_u),
+        _as_float(elements.coef_v),
+        _as_float(elements.area), hv,
         _as_index(elements.hinge_triangles).reshape(-1, 2),
-        np.ascontiguousarray(elements.hinge_weight, dtype=np.float64), theta, x,
-        np.ascontiguousarray(v, dtype=np.float64),
-        np.ascontiguousarray(masses, dtype=np.float64),
+        _as_float(elements.hinge_weight), theta, x,
+        _as_float(v),
+        _as_float(masses),
         float(material.stretch_stiffness), float(material.shear_stiffness),
         float(material.bend_stiffness), delta, kinetic, area, mid, offset)
     if not ok:
@@ -537,6 +575,11 @@ def warm_up() -> None:
     deviation, _, rate, force, _, theta = criterion(elements, 1e-5, x, v, None, 0.01)
     refine_order(deviation, 0.0, elements.hinge_triangles, triangle_ids, h.level, h.max_level,
                  np.zeros(0, dtype=np.int64))
+    merge_candidates(h, elements.hinge_vertices,
+                     SimpleNamespace(deviation=deviation, rate=rate, bend_force=force),
+                     SimpleNamespace(coarsen_threshold=1.0, max_hinge_rate=1.0,
+                                     max_bend_force=1.0),
+                     vertex_ids, -1.0, np.zeros(1, dtype=np.int64))
     vertices, kids = split_candidates(h)
     mergeable(elements.hinge_vertices,
               SimpleNamespace(deviation=deviation, rate=rate, bend_force=force),
