@@ -77,15 +77,22 @@ def test_every_round_equals_refactorising(seed):
         want = reference.solve(matrix, rhs, constraints, None)
         state, filters = projection.particle_filters(matrix, rhs, constraints)
         assert factor.covers(state)
-        b, z = projection.projected_rhs(matrix, rhs, constraints)
-        y = factor.solve(state, filters, b)
-        got = solvers._factorised_result(matrix, rhs, constraints, z, y, 1e-8)
-        assert got.converged and got.residual < 1e-10
-        np.testing.assert_allclose(got.dv, want.dv, atol=1e-10 * np.abs(want.dv).max())
+        status, dv, residual = factor.round(matrix, rhs, constraints)
+        assert status == 0 and residual < 1e-10
+        np.testing.assert_allclose(dv, want.dv, atol=1e-10 * np.abs(want.dv).max())
+        # The same residual as the reference computes for that Δv.
+        check = solvers._factorised_result(matrix, rhs, constraints,
+                                           dv, np.zeros_like(dv), 1e-8)
+        assert check.residual < 1e-10
         held = constraints.indices[~np.any(constraints.projectors != 0.0, axis=(1, 2))]
         last = {int(p): k for k, p in enumerate(constraints.indices)}
         for p in held:          # held particles land exactly on their prescribed change
-            np.testing.assert_array_equal(got.dv[p], constraints.prescribed[last[int(p)]])
+            np.testing.assert_array_equal(dv[p], constraints.prescribed[last[int(p)]])
+    # A constraint outside the trailing block is refused, not solved.
+    outside = Constraints(np.array([mesh.vertex_count // 2]), np.zeros((1, 3, 3)),
+                          np.zeros((1, 3)))
+    assert not factor.member[mesh.vertex_count // 2]
+    assert factor.round(matrix, rhs, outside)[0] == 1
 
 
 def test_the_backend_serves_rounds_on_one_factorisation_and_falls_back_outside_it():

@@ -29,10 +29,10 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from scipy.linalg.lapack import dpotrf as _potrf, dpotrs as _potrs
 
 from .block_ldl import back_part, factor_rows, forward_part
-from .projection_kernels import FREE, HELD
+from .projection_kernels import (FREE, HELD, _filtered_residual, _particle_filters, _solution,
+                                 _start)
 
 __all__ = ["TrailingFactor", "TrailingRounds", "dense_round_updates", "filtered_schur"]
 
@@ -75,6 +75,60 @@ def filtered_schur(schur, state, filters, diagonal, out):
                         v += free[a, e] * diagonal[i, e, f] * free[d, f]
                 out[3 * i + a, 3 * i + d] += v
     return s
+
+
+@numba.njit(cache=True)
+def round_kernel(indptr, indices, data, rhs, constrained, projectors, prescribed, perm,
+                 pointers, rows, factor, inverse_diagonal, first, trailing, schur, diagonal,
+                 member):
+    """One contact round on a trailing factor, compiled end to end: the
+    filters of the constraints ``(constrained (k,), projectors (k, 3, 3),
+    prescribed (k, 3))``, the projected right-hand side ``S (b − A z)``, the
+    solve (forward part, the dense ``M`` by Cholesky, back part) and ``Δv = z
+    + S y`` with the squared norms of ``S (b − A Δv)`` and ``S b``.
+
+    Returns ``(status, Δv (n, 3), norm_r², norm_b²)``: status 0, or 1 where a
+    constrained particle is not in the trailing block (``member`` ``(n,)``
+    bool), 2 where a constraint names no particle.
+    """
+    n = len(indptr) - 1
+    ok, state, filters = _particle_filters(n, constrained, projectors)
+    empty = np.zeros((0, 3))
+    if not ok:
+        return 2, empty, 0.0, 0.0
+    for i in range(n):
+        if state[i] != FREE and not member[i]:
+            return 1, empty, 0.0, 0.0
+    z = _start(n, constrained, projectors, prescribed)
+    b = _filtered_residual(indptr, indices, data, rhs, z, state, filters)
+    c = len(trailing)
+    dense = np.empty((3 * c, 3 * c))
+    s = filtered_schur(schur, state[trailing], filters[trailing], diagonal, dense)
+    x = forward_part(perm, pointers, rows, factor, inverse_diagonal, first, b)
+    tail = np.empty(3 * c)
+    for k in range(c):
+        for a in range(3):
+            tail[3 * k + a] = s[k, a, 0] * x[first + k, 0] + s[k, a, 1] * x[first + k, 1] \
+                + s[k, a, 2] * x[first + k, 2]
+    low = np.linalg.cholesky(dense)                  # raises LinAlgError if not definite
+    m = 3 * c
+    for i in range(m):                               # L w = tail
+        v = tail[i]
+        for j in range(i):
+            v -= low[i, j] * tail[j]
+        tail[i] = v / low[i, i]
+    for i in range(m - 1, -1, -1):                   # Lᵀ y = w
+        v = tail[i]
+        for j in range(i + 1, m):
+            v -= low[j, i] * tail[j]
+        tail[i] = v / low[i, i]
+    for k in range(c):
+        for a in range(3):
+            x[first + k, a] = s[k, a, 0] * tail[3 * k] + s[k, a, 1] * tail[3 * k + 1] \
+                + s[k, a, 2] * tail[3 * k + 2]
+    y = back_part(perm, pointers, rows, factor, first, x)
+    dv, norm_r, norm_b = _solution(indptr, indices, data, rhs, z, y, state, filters)
+    return 0, dv, norm_r, norm_b
 
 
 def dense_round_updates(count: int) -> float:
@@ -149,24 +203,18 @@ class TrailingFactor:
         """Whether every constrained particle (``state`` ``(n,)`` int8) is trailing."""
         return not np.any((state != FREE) & ~self.member)
 
-    def solve(self, state, filters, b):
-        """``y`` ``(n, 3)`` with ``Â y = b`` for the filters ``(state, filters)``
-        (:func:`~cloth_lod_ros.sim.projection_kernels.particle_filters`) and
-        ``b`` ``(n, 3)`` the projected right-hand side ``S (b − A z)``."""
-        c = len(self.trailing)
-        m = self._dense
-        s = filtered_schur(self.schur, state[self.trailing], filters[self.trailing],
-                           self.diagonal, m)
-        x = forward_part(self.perm, self.pointers, self.rows, self.factor,
-                             self.inverse_diagonal, self.first, np.ascontiguousarray(b))
-        tail = np.einsum("kab,kb->ka", s, x[self.first:])
-        # LAPACK directly: scipy.linalg's wrappers cost a third of this small Cholesky.
-        upper, info = _potrf(m, lower=0, clean=0, overwrite_a=1)
-        if info != 0:
-            raise np.linalg.LinAlgError(f"trailing block not definite (potrf info {info})")
-        y_c, info = _potrs(upper, tail.reshape(-1), lower=0)
-        x[self.first:] = np.einsum("kab,kb->ka", s, y_c.reshape(c, 3))
-        return back_part(self.perm, self.pointers, self.rows, self.factor, self.first, x)
+    def round(self, matrix, rhs, constraints):
+        """``(status, Δv, relative residual)`` of one round (:func:`round_kernel`;
+        status 1: a constraint outside the trailing block, nothing solved)."""
+        status, dv, norm_r, norm_b = round_kernel(
+            self.indptr, self.indices, self._key[1], np.ascontiguousarray(rhs),
+            np.ascontiguousarray(constraints.indices),
+            np.ascontiguousarray(constraints.projectors),
+            np.ascontiguousarray(constraints.prescribed), self.perm, self.pointers, self.rows,
+            self.factor, self.inverse_diagonal, self.first, self.trailing, self.schur,
+            self.diagonal, self.member)
+        residual = float(np.sqrt(norm_r) / np.sqrt(norm_b)) if norm_b > 0 else 0.0
+        return status, dv, residual
 
 
 class TrailingRounds:
@@ -243,11 +291,16 @@ class TrailingRounds:
         small, too many or no constraints, a constraint outside the trailing
         block, no compiled kernels)."""
         from . import projection_kernels as projection
-        from .solvers import _FactoredSystem, _block_ldl_module, _factorised_result
+        from .solvers import _FactoredSystem, _block_ldl_module
         if self._count(matrix):
             return None                 # declined for this matrix already
         factor = self.factor
         held = factor is not None and factor.holds(matrix)
+        usable = projection._usable(matrix, rhs, constraints)
+        if held and usable:
+            result = self._round(factor, matrix, rhs, constraints, backend.tolerance)
+            if result is not None:
+                return result if result.converged else None
         if not held and backend._symbolic is None and self._rounds >= 1.5:
             backend._analyse(matrix)        # a new topology's first solve
         if not held and (self._rounds < 1.5 or backend._symbolic is None
@@ -257,7 +310,7 @@ class TrailingRounds:
         filters = projection.particle_filters(matrix, rhs, constraints)
         if filters is None:
             return None
-        state, per_particle = filters
+        state = filters[0]
         if not held or not factor.covers(state):
             constrained = np.flatnonzero(state != FREE)
             rounds = min(self._rounds, self._served)
@@ -284,16 +337,24 @@ class TrailingRounds:
             if not factor.refactor(matrix, np.ascontiguousarray(matrix.data)):
                 return None
             _FactoredSystem.factorisations += 1
-        b, z = projection.projected_rhs(matrix, rhs, constraints)
+        result = self._round(factor, matrix, rhs, constraints, backend.tolerance)
+        return result if result is not None and result.converged else None
+
+    def _round(self, factor, matrix, rhs, constraints, tolerance):
+        """A round on ``factor`` as a SolveResult (converged: within
+        ``tolerance`` or 1e-8, as a factorisation's), None where a constraint
+        lies outside its block or its dense block is not definite."""
+        from .linear import SolveResult
         try:
-            y = factor.solve(state, per_particle, b)
+            status, dv, residual = factor.round(matrix, rhs, constraints)
         except np.linalg.LinAlgError:
             return None
-        result = _factorised_result(matrix, rhs, constraints, z, y, backend.tolerance)
-        if not result.converged:
+        if status != 0:
             return None
-        self._serving += 1
-        return result
+        converged = bool(np.isfinite(residual) and residual <= max(tolerance, 1e-8))
+        if converged:
+            self._serving += 1
+        return SolveResult(dv=dv, iterations=0, residual=residual, converged=converged)
 
 
 def warm_up() -> None:
@@ -316,7 +377,8 @@ def warm_up() -> None:
     factor = TrailingFactor(indptr, indices, np.arange(n, dtype=np.int64),
                             np.array([2, 3], dtype=np.int64), symbolic, diagonal)
     factor.refactor(matrix, np.ascontiguousarray(matrix.data))
-    state = np.array([FREE, FREE, HELD, 2], dtype=np.int8)
-    filters = np.zeros((n, 3, 3))
-    filters[3] = np.diag([1.0, 1.0, 0.0])
-    factor.solve(state, filters, np.ones((n, 3)))
+    from .linear import Constraints
+    constraints = Constraints(np.array([2, 3], dtype=np.int64),
+                              np.stack([np.zeros((3, 3)), np.diag([1.0, 1.0, 0.0])]),
+                              np.zeros((2, 3)))
+    factor.round(matrix, np.ones((n, 3)), constraints)
