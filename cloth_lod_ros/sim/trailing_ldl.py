@@ -230,8 +230,9 @@ class TrailingRounds:
 
     in block updates, which time both factorisations alike (7.2-7.9 ns each
     on the CI VM); a round costs its dense Cholesky (:func:`dense_round_updates`)
-    plus about 20,000 updates' worth of its own kernels and calls (measured:
-    0.16 ms at 25 trailing particles, 0.26 at 51, 0.71 at 100, 1.6 at 150).  Counts, not timings: the
+    plus about 20,000 updates' worth of its own passes over the system (one
+    compiled round, measured: 0.15 ms at 25 trailing particles, 0.27 at 51,
+    0.73 at 100; the model says 0.16, 0.23, 0.78).  Counts, not timings: the
     choice, and so the trajectory to round-off, is the same on every machine
     and in a bag's re-simulation.
     """
