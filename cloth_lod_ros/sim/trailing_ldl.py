@@ -16,13 +16,15 @@ where ``L_I D_I L_Iᵀ = A_II`` and ``L_CI = A_CI L_I⁻ᵀ D_I⁻¹`` do not de
 ``S`` at all: they are factorised once per ``A`` (:func:`~cloth_lod_ros.sim.block_ldl.factor_rows`,
 the up-looking factorisation of :mod:`.block_ldl` that stops at ``C`` and
 leaves its unfiltered Schur complement ``T``, dense), and each round only
-filters ``T`` and factorises the dense ``M`` (``3|C|`` unknowns, LAPACK).
+filters ``T`` and factorises the dense ``M`` (``3|C|`` unknowns, Cholesky),
+all in one compiled call (:func:`round_kernel`).
 ``D_C`` are ``A``'s diagonal blocks (any SPD block gives the same ``Δv``:
 held directions are prescribed).
 
 The elimination order is the topology's AMD order with ``C`` moved to the
-end: more fill than AMD's (1.67× the block updates on a ``grasp_lift``
+end: more fill than AMD's (1.6× the block updates on a ``grasp_lift``
 hold-phase system with 51 contacts), paid once instead of at every round.
+:class:`TrailingRounds` decides when that pays.
 """
 
 from __future__ import annotations
@@ -34,7 +36,8 @@ from .block_ldl import back_part, factor_rows, forward_part
 from .projection_kernels import (FREE, HELD, _filtered_residual, _particle_filters, _solution,
                                  _start)
 
-__all__ = ["TrailingFactor", "TrailingRounds", "dense_round_updates", "filtered_schur"]
+__all__ = ["TrailingFactor", "TrailingRounds", "dense_round_updates", "filtered_schur",
+           "round_kernel"]
 
 
 @numba.njit(cache=True)
