@@ -299,12 +299,15 @@ class TrailingRounds:
         if self._count(matrix):
             return None                 # declined for this matrix already
         factor = self.factor
+        if not projection._usable(matrix, rhs, constraints):
+            return None                 # dtypes the compiled round does not take
         held = factor is not None and factor.holds(matrix)
-        usable = projection._usable(matrix, rhs, constraints)
-        if held and usable:
-            result = self._round(factor, matrix, rhs, constraints, backend.tolerance)
-            if result is not None:
+        if held:
+            status, result = self._round(factor, matrix, rhs, constraints, backend.tolerance)
+            if status == 0:
                 return result if result.converged else None
+            if status != 1:
+                return None             # another trailing factorisation would fail alike
         if not held and backend._symbolic is None and self._rounds >= 1.5:
             backend._analyse(matrix)        # a new topology's first solve
         if not held and (self._rounds < 1.5 or backend._symbolic is None
@@ -341,24 +344,26 @@ class TrailingRounds:
             if not factor.refactor(matrix, np.ascontiguousarray(matrix.data)):
                 return None
             _FactoredSystem.factorisations += 1
-        result = self._round(factor, matrix, rhs, constraints, backend.tolerance)
-        return result if result is not None and result.converged else None
+        status, result = self._round(factor, matrix, rhs, constraints, backend.tolerance)
+        return result if status == 0 and result.converged else None
 
     def _round(self, factor, matrix, rhs, constraints, tolerance):
-        """A round on ``factor`` as a SolveResult (converged: within
-        ``tolerance`` or 1e-8, as a factorisation's), None where a constraint
-        lies outside its block or its dense block is not definite."""
+        """``(status, result)`` of a round on ``factor``: status 0 and a
+        SolveResult (converged: within ``tolerance`` or 1e-8, as a
+        factorisation's); 1 where a constraint lies outside its block; 2
+        where a constraint names no particle or the dense block is not
+        definite (result None)."""
         from .linear import SolveResult
         try:
             status, dv, residual = factor.round(matrix, rhs, constraints)
         except np.linalg.LinAlgError:
-            return None
+            return 2, None
         if status != 0:
-            return None
+            return status, None
         converged = bool(np.isfinite(residual) and residual <= max(tolerance, 1e-8))
         if converged:
             self._serving += 1
-        return SolveResult(dv=dv, iterations=0, residual=residual, converged=converged)
+        return 0, SolveResult(dv=dv, iterations=0, residual=residual, converged=converged)
 
 
 def warm_up() -> None:
