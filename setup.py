@@ -34,9 +34,12 @@ setup(
     # block_ldl; numba: the compiled force/assembly kernels and block_ldl
     # (forces + assembly 3-5x, factorisation 2.5-3x faster; wheels for x86_64
     # and aarch64, glibc >= 2.28).  Without either the simulator falls back to
-    # its numpy reference code and PCG/multigrid.
+    # its numpy reference code and PCG/multigrid.  threadpoolctl (pure Python):
+    # one BLAS thread inside a step (sim/blas_threads.py: idle threads spun
+    # on the second core, and the thread count changed results at round-off).
     install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6",
-                      "matplotlib>=3.6", "qdldl>=0.1.7", "numba>=0.60"],
+                      "matplotlib>=3.6", "qdldl>=0.1.7", "numba>=0.60",
+                      "threadpoolctl>=3.1"],
     extras_require={
         "ros": ROS_WHEELS + BAG,
         "test": ROS_WHEELS + BAG + BAG_READERS + ["pytest>=7", "hypothesis>=6"],

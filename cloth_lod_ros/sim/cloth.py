@@ -30,6 +30,7 @@ import time as _time
 
 import numpy as np
 
+from .blas_threads import one_blas_thread
 from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
 from .contact import nearest_surface
 from .forces import Elements, air_power
@@ -251,7 +252,10 @@ class ClothSim(HeldInputs, ObstacleInputs):
         before = self.state.copy()
         self._step_operations = OperationLog()
         try:
-            return self._step()
+            # Deterministic whatever the machine's cores, and no spinning
+            # BLAS threads on the core the node's inputs need (blas_threads).
+            with one_blas_thread():
+                return self._step()
         except SimulationError:
             self._roll_back(before)
             raise

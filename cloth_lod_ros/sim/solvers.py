@@ -39,6 +39,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from .blas_threads import forget_libraries
 from .linear import (Constraints, SolveResult, SparsePattern, block_diagonal_matrix,
                      filtered_pcg, project_system, projected_data, projected_rhs,
                      relative_residual, solve_projected_direct)
@@ -104,6 +105,7 @@ def _cholmod_modules():
             import cvxopt
             import cvxopt.cholmod as cholmod
             _CHOLMOD = (cvxopt, cholmod)
+            forget_libraries()          # one_blas_thread lists its OpenBLAS too
         except ImportError:
             _CHOLMOD = ()
         finally:
