@@ -68,6 +68,12 @@ class HeldInputs:
                 pin.vertex = int(np.searchsorted(ids, pin.node))
                 pin.vertices = np.searchsorted(ids, pin.nodes)
         for g in getattr(self, "grasps", ()):
+            if len(g.nodes):
+                # A grasp keeps what it holds wherever the material went, except
+                # particles a scripted merge (or an undone split) removed.
+                _, present = _compact_index(ids, g.nodes)
+                if not present.all():
+                    g.nodes, g.offsets = g.nodes[present], g.offsets[present]
             if g.closed and g.width > 0:
                 _, new, _, _ = _patch_refresh(ids, uv, g.uv, 0.5 * g.width, g.nodes, None)
                 if len(new):
