@@ -34,12 +34,6 @@ import numpy as np
 
 __all__ = ["symbolic", "numeric", "factor_rows", "solve", "forward_part", "back_part"]
 
-#: The only fast-math flag the numeric kernels take: multiply-adds contracted
-#: into FMAs (one rounding instead of two; the factorisation 0.87x the time on
-#: a captured grasp_lift system).  No reassociation, and no assumption that
-#: values are finite: a singular or non-finite pivot must still be seen.
-_CONTRACT = {"contract"}
-
 
 @numba.njit(cache=True)
 def symbolic(indptr, indices, perm, pinv):
@@ -78,7 +72,7 @@ def symbolic(indptr, indices, perm, pinv):
     return parent, column_pointers
 
 
-@numba.njit(cache=True, fastmath=_CONTRACT)
+@numba.njit(cache=True)
 def numeric(indptr, indices, data, perm, pinv, parent, column_pointers,
             rows, factor, inverse_diagonal, held):
     """Numeric factorisation ``P A Pᵀ = L D Lᵀ``, written into the arrays given.
@@ -106,7 +100,7 @@ def numeric(indptr, indices, data, perm, pinv, parent, column_pointers,
                        factor, inverse_diagonal, held, len(perm), np.zeros((0, 0, 3, 3)))
 
 
-@numba.njit(cache=True, fastmath=_CONTRACT)
+@numba.njit(cache=True)
 def factor_rows(indptr, indices, data, perm, pinv, parent, column_pointers, rows, factor,
                 inverse_diagonal, held, first, schur):
     """:func:`numeric` for the positions before ``first``; the rows from
@@ -225,7 +219,7 @@ def factor_rows(indptr, indices, data, perm, pinv, parent, column_pointers, rows
     return -1
 
 
-@numba.njit(cache=True, fastmath=_CONTRACT)
+@numba.njit(cache=True)
 def solve(perm, column_pointers, rows, factor, inverse_diagonal, rhs):
     """``x = A⁻¹ b`` from :func:`numeric`'s factor; ``rhs`` and the result ``(n, 3)``."""
     n = len(perm)
@@ -233,7 +227,7 @@ def solve(perm, column_pointers, rows, factor, inverse_diagonal, rhs):
     return back_part(perm, column_pointers, rows, factor, n, x)
 
 
-@numba.njit(cache=True, fastmath=_CONTRACT)
+@numba.njit(cache=True)
 def forward_part(perm, column_pointers, rows, factor, inverse_diagonal, first, rhs):
     """``x`` ``(n, 3)`` in elimination order: ``D_I⁻¹ L_I⁻¹ b_I`` before
     ``first`` and ``b_C − L_CI L_I⁻¹ b_I`` from it on (``first = n``: the
@@ -258,7 +252,7 @@ def forward_part(perm, column_pointers, rows, factor, inverse_diagonal, first, r
     return x
 
 
-@numba.njit(cache=True, fastmath=_CONTRACT)
+@numba.njit(cache=True)
 def back_part(perm, column_pointers, rows, factor, first, x):
     """Back substitution ``L_Iᵀ x_I = x_I − L_CIᵀ x_C`` in place (``x`` in
     elimination order, its trailing part already solved); returns the

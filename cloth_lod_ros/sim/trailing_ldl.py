@@ -32,7 +32,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .block_ldl import _CONTRACT, back_part, factor_rows, forward_part
+from .block_ldl import back_part, factor_rows, forward_part
 from .projection_kernels import (FREE, HELD, _filtered_residual, _particle_filters, _solution,
                                  _start)
 
@@ -40,7 +40,7 @@ __all__ = ["TrailingFactor", "TrailingRounds", "dense_round_updates", "filtered_
            "round_kernel"]
 
 
-@numba.njit(cache=True, fastmath=_CONTRACT)
+@numba.njit(cache=True)
 def filtered_schur(schur, state, filters, diagonal, out):
     """``M = S T S + (I − S) D (I − S)`` ``(3c, 3c)`` into ``out`` from ``T``
     ``schur`` ``(c, c, 3, 3)``, the trailing particles' filter states
@@ -80,7 +80,7 @@ def filtered_schur(schur, state, filters, diagonal, out):
     return s
 
 
-@numba.njit(cache=True, fastmath=_CONTRACT)
+@numba.njit(cache=True)
 def round_kernel(indptr, indices, data, rhs, constrained, projectors, prescribed, perm,
                  pointers, rows, factor, inverse_diagonal, first, trailing, schur, diagonal,
                  member):
