@@ -212,10 +212,10 @@ def _coarse_points(p, fine):
 
 
 def _factorisation() -> str:
-    """What ``auto`` factorises with: CHOLMOD if installed, else the block
-    LDLᵀ, else QDLDL, else PCG."""
+    """What ``auto`` factorises with: the block LDLᵀ (numba), else CHOLMOD if
+    installed, else QDLDL, else PCG."""
     available = solvers.available_methods()
-    return next((m for m in ("cholmod", "block_ldl", "direct") if m in available), "pcg")
+    return next((m for m in ("block_ldl", "cholmod", "direct") if m in available), "pcg")
 
 
 def test_auto_factorises_small_systems_and_uses_multigrid_on_large_ones():

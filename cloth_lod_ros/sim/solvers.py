@@ -526,8 +526,13 @@ class Auto(LinearSolver):
 
     def __init__(self, tolerance, max_iterations, geometry=None):
         super().__init__(tolerance, max_iterations, geometry)
-        direct = (CholmodDirect if _cholmod_modules() is not None
-                  else BlockLdl if _block_ldl_module() is not None
+        # The block LDLᵀ before CHOLMOD: it alone shares a factorisation
+        # between contact rounds, and it is the faster on graded meshes
+        # (bench --solvers, one run: default scene 5.1 against 6.5 ms per
+        # step, grasp_lift 16.0 against 21.8; CHOLMOD is ahead only on
+        # uniform L6-L7, 14.6 against 16.3 and 39.5 against 45.6).
+        direct = (BlockLdl if _block_ldl_module() is not None
+                  else CholmodDirect if _cholmod_modules() is not None
                   else LdlDirect if _qdldl is not None else None)
         self._large = Multigrid(tolerance, max_iterations, geometry)
         self._small = (direct(tolerance, max_iterations, geometry) if direct is not None
