@@ -528,9 +528,9 @@ class Auto(LinearSolver):
         super().__init__(tolerance, max_iterations, geometry)
         # The block LDLᵀ before CHOLMOD: it alone shares a factorisation
         # between contact rounds, and it is the faster on graded meshes
-        # (bench --solvers, one run: default scene 5.1 against 6.5 ms per
-        # step, grasp_lift 16.0 against 21.8; CHOLMOD is ahead only on
-        # uniform L6-L7, 14.6 against 16.3 and 39.5 against 45.6).
+        # (bench --solvers, README: default scene 5.0 against 6.4 ms per
+        # step, grasp_lift 15.6 against 22.0; CHOLMOD is ahead only on
+        # uniform meshes from L6, 14.7 against 15.8 there, 39.5 against 46.3 at L7).
         direct = (BlockLdl if _block_ldl_module() is not None
                   else CholmodDirect if _cholmod_modules() is not None
                   else LdlDirect if _qdldl is not None else None)
