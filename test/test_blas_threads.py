@@ -3,7 +3,6 @@ the trajectory does not depend on the machine's cores, and the caller's own
 setting is back after the step."""
 
 import numpy as np
-import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from cloth_lod_ros.sim.cloth import ClothSim

@@ -43,8 +43,9 @@ class FakeClock:
 
 @pytest.fixture
 def paced(tmp_path, monkeypatch):
-    """``(node, clock, publishes, set_step_cost)``: publishes are ``(fake time,
-    step count)`` of every frame the node sends."""
+    """``(node, clock, publishes, cost)``: publishes are ``(fake time, step
+    count)`` of every frame the node sends; ``cost["s"]`` is the fake time each
+    step takes (s)."""
     clock = FakeClock()
     monkeypatch.setattr(node_module, "time", clock)
     scene = tmp_path / "pacing_test.yaml"
