@@ -55,6 +55,9 @@ def test_rechecks_decide_as_full_checks(monkeypatch, compiled, scene, overrides,
         pytest.skip("numba not installed")
     kernels.use(compiled)
     seen = _checked_decide(monkeypatch)
+    # decide's re-checks: the rounds on the adopted mesh (the pool rounds'
+    # equality with them is test_lod_rounds').
+    monkeypatch.setattr(ClothSim, "pool_rounds", False)
     sim = ClothSim.from_scene(scene, overrides)
     for _ in range(steps):
         sim.step()

@@ -35,7 +35,7 @@ from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_
 from .contact import nearest_surface
 from .forces import Elements, air_power
 from . import (compact_kernels, hierarchy_kernels, kernels, lod_kernels, multigrid_kernels,
-               projection_kernels, self_kernels, topology_kernels)
+               projection_kernels, round_kernels, self_kernels, topology_kernels)
 from .topology_kernels import precompute   # compiled when numba is there
 from .kernels import elastic_energies   # compiled when numba is there
 from .grasps import Grasp
@@ -43,7 +43,7 @@ from .held import HeldInputs
 from .hierarchy import Hierarchy48
 from .integrator import ImplicitStageSolver
 from .kinematics import ObstacleInputs
-from .lod import LodPolicy
+from .lod import LodDecision, LodPolicy
 from .oplog import OperationLog
 from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
@@ -123,6 +123,7 @@ def warm_up_compiled_code() -> float:
         projection_kernels.warm_up()  # sliding contacts' projection, if the tiny step had none
         lod_kernels.warm_up()       # the LOD criterion's, whether or not the tiny step merged
         multigrid_kernels.warm_up()  # the V-cycle a large cloth's solves use
+        round_kernels.warm_up()     # a check's later rounds, on the hierarchy's pools
         compact_kernels.warm_up()   # a topology change's compact mesh and held patches
         if "block_ldl" in available_methods():
             from . import trailing_ldl   # imports numba, like block_ldl
@@ -149,6 +150,12 @@ class ClothSim(HeldInputs, ObstacleInputs):
     re-solves and the error-controlled step size).  A step that fails is
     refused whole: its mesh operations are undone and the state is kept.
     """
+
+    #: A LOD check's rounds after the first find their refinements on the
+    #: hierarchy's pools and adopt the mesh once (:meth:`adapt`); False: the
+    #: compact path, adopting after every round (the reference the tests
+    #: compare with; the same operations).
+    pool_rounds = True
 
     def __init__(self, scene: SceneConfig, keep_stats: int | None = None):
         """Args:
@@ -445,13 +452,37 @@ class ClothSim(HeldInputs, ObstacleInputs):
         sc, own = self.self_collision, self.scene.self_collision
         total_splits = total_merges = 0
         recheck = None      # after a round: its merged edges (the next one re-checks)
+        # Rounds after the first find their refinements on the hierarchy's
+        # pools, and the mesh is adopted once, after the last (round_kernels);
+        # with self-collision each round's new particles are moved out of the
+        # other layers, on the adopted mesh.
+        on_pools = sc is None and self.pool_rounds
+        stale = False       # the hierarchy changed since the mesh was adopted
+        detail_points = (np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
+                         if self.grasps else _NO_POINTS)
         for round_index in range(max(1, int(rounds))):
             h, time = self.hierarchy, self.state.time
             merging = simplify and round_index == 0
+            if stale:
+                refine = self.lod_policy.recheck_on_pools(h, time, recheck, detail_points,
+                                                          lookahead)
+                if refine is not None:
+                    if not refine:
+                        break
+                    recheck = []
+                    before = h.active_vertices() if self.obstacles else None
+                    splits, _ = LodPolicy.apply(h, LodDecision(refine, []), time,
+                                                log=self._step_operations)
+                    if self.obstacles and splits:
+                        self._lift_new_particles(before)
+                    total_splits += splits
+                    if not splits:
+                        break
+                    continue
+                self._adopt_hierarchy()         # the kernels cannot: adopt and decide
+                stale = on_pools = False
             # Held particles matter to merges only; grasps' points only if any.
             held_nodes = self._held_nodes() if merging else _NO_NODES
-            detail_points = (np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
-                             if self.grasps else _NO_POINTS)
             # How many obstacles each particle touches (0, 1 or 2); None: none
             # touches any (decide then skips what it would find nothing in).
             in_contact = None
@@ -477,6 +508,13 @@ class ClothSim(HeldInputs, ObstacleInputs):
             if splits or merges:
                 if self.obstacles and splits:
                     self._lift_new_particles()
+                if on_pools:
+                    stale = True
+                    total_splits += splits
+                    total_merges += merges
+                    if not splits:
+                        break
+                    continue
                 self._adopt_hierarchy()
                 if sc is not None and splits:
                     # A split's particle sits on the chord, which can lie inside the
@@ -489,15 +527,20 @@ class ClothSim(HeldInputs, ObstacleInputs):
             total_merges += merges
             if not splits:
                 break
+        if stale:
+            self._adopt_hierarchy()
         return total_splits, total_merges
 
-    def _lift_new_particles(self) -> None:
+    def _lift_new_particles(self, known: np.ndarray | None = None) -> None:
         """Put particles just made by splits that lie inside an obstacle's offset
         surface onto it.  A split places them on the chord between two particles,
         which sags into a curved obstacle (by s²/8R); only these new particles
-        move, and their velocities (hence momentum) are unchanged."""
+        move, and their velocities (hence momentum) are unchanged.  New: active
+        now and not among ``known`` (pool ids, increasing; default the adopted
+        mesh's particles)."""
         h = self.hierarchy
-        new = np.setdiff1d(h.active_vertices(), self.vertex_ids, assume_unique=True)
+        known = self.vertex_ids if known is None else known
+        new = np.setdiff1d(h.active_vertices(), known, assume_unique=True)
         if not len(new):
             return
         thickness = self.scene.contact.thickness

@@ -17,11 +17,13 @@ numba everything is the reference.
 The kernels' form of the index that the reference keeps in Python
 containers (:class:`CompiledIndex`):
 
-* the edge index, a typed dict from the sorted vertex pair packed in one
-  int64 (``lo << 32 | hi``) to its one or two active triangles packed the
-  same way (``(t0 + 1) | (t1 + 1) << 32``, 0 for none), in the order the
-  reference's lists hold them (that order picks a split's first parent);
-* the midpoint map, a typed dict from the packed split edge to its midpoint;
+* the edge index, an :mod:`~cloth_lod_ros.sim.int_table` hash table from the
+  sorted vertex pair packed in one int64 (``lo << 32 | hi``) to its one or
+  two active triangles packed the same way (``(t0 + 1) | (t1 + 1) << 32``, 0
+  for none), in the order the reference's lists hold them (that order picks
+  a split's first parent);
+* the midpoint map, a table from the packed split edge to its midpoint
+  (both tables' entry counts live in the counters below);
 * the free lists, stacks in arrays as long as the pool (a pool never has
   more free slots than its capacity), with their counts.
 
@@ -39,6 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import int_table as _table
 from . import kernels as _kernels
 
 __all__ = ["enabled", "CompiledIndex", "execute", "warm_up"]
@@ -52,11 +55,18 @@ SPLIT, MERGE = 0, 1
 #: merge whose children are refined further; an edge with a third triangle.
 #: NEED_VERTICES / NEED_TRIANGLES: that pool is full; grow it and call again.
 #: OUT_OF_RANGE: an id the kernels cannot take (nothing done; use the reference).
+#: NEED_INDEX: the edge or midpoint table is half full; grow both and call again.
 (OK, NOT_HYPOTENUSE, AT_MAX_LEVEL, NOT_SPLIT, REFINED_FURTHER, INDEX_BROKEN, NEED_VERTICES,
- NEED_TRIANGLES, OUT_OF_RANGE) = range(9)
-# Counters shared with the caller: pool high-water marks, free-list sizes and
-# the topology version (int64 array, written back after the call).
-_VERTEX_END, _TRIANGLE_END, _FREE_VERTICES, _FREE_TRIANGLES, _VERSION = range(5)
+ NEED_TRIANGLES, OUT_OF_RANGE, NEED_INDEX) = range(10)
+# Counters shared with the caller: pool high-water marks, free-list sizes,
+# the topology version and the entries in the edge and midpoint tables
+# (int64 array, written back after the call).
+(_VERTEX_END, _TRIANGLE_END, _FREE_VERTICES, _FREE_TRIANGLES, _VERSION, _EDGES,
+ _MIDPOINTS) = range(7)
+# A split adds at most 4 edges (then 3) and 1 midpoint, a merge at most 1
+# edge for a moment: a split first checks there is room for this many of
+# each below half of its table (int_table).
+_INDEX_ROOM = 8
 _LOW = (1 << 32) - 1
 
 
@@ -74,45 +84,45 @@ def _edge_key(a, b):
 
 
 @_jit
-def _add_user(edges, key, t):
+def _add_user(edges, counters, key, t):
     """Append triangle ``t`` to the edge's users (False: it had two already)."""
-    packed = edges.get(key, 0)
+    packed = _table.get(edges, key, 0)
     if packed == 0:
-        edges[key] = t + 1
+        counters[_EDGES] += _table.put(edges, key, t + 1)
         return True
     if (packed >> 32) != 0:
         return False
-    edges[key] = packed | ((t + 1) << 32)
+    _table.put(edges, key, packed | ((t + 1) << 32))
     return True
 
 
 @_jit
-def _remove_user(edges, key, t):
+def _remove_user(edges, counters, key, t):
     """Remove ``t`` from the edge's users, keeping the other's place
     (``list.remove``); drop an edge left without users.  False: not a user."""
-    packed = edges.get(key, 0)
+    packed = _table.get(edges, key, 0)
     first, second = (packed & _LOW) - 1, (packed >> 32) - 1
     if packed == 0:
         return False
     if first == t:
         if second < 0:
-            edges.pop(key)
+            counters[_EDGES] -= _table.remove(edges, key)
         else:
-            edges[key] = second + 1
+            _table.put(edges, key, second + 1)
     elif second == t:
-        edges[key] = first + 1
+        _table.put(edges, key, first + 1)
     else:
         return False
     return True
 
 
 @_jit
-def _link(edges, mass_units, tri_active, t, a, b, c, units):
+def _link(edges, counters, mass_units, tri_active, t, a, b, c, units):
     """Hierarchy48._link: index triangle ``t`` = ``(a, b, c)`` under its edges
     and give each corner ``units`` mass units, in the reference's order."""
-    ok = _add_user(edges, _edge_key(a, b), t)
-    ok &= _add_user(edges, _edge_key(b, c), t)
-    ok &= _add_user(edges, _edge_key(c, a), t)
+    ok = _add_user(edges, counters, _edge_key(a, b), t)
+    ok &= _add_user(edges, counters, _edge_key(b, c), t)
+    ok &= _add_user(edges, counters, _edge_key(c, a), t)
     mass_units[a] = mass_units[a] + units
     mass_units[b] = mass_units[b] + units
     mass_units[c] = mass_units[c] + units
@@ -121,11 +131,11 @@ def _link(edges, mass_units, tri_active, t, a, b, c, units):
 
 
 @_jit
-def _unlink(edges, mass_units, tri_active, t, a, b, c, units):
+def _unlink(edges, counters, mass_units, tri_active, t, a, b, c, units):
     """Hierarchy48._unlink, the inverse of :func:`_link`."""
-    ok = _remove_user(edges, _edge_key(a, b), t)
-    ok &= _remove_user(edges, _edge_key(b, c), t)
-    ok &= _remove_user(edges, _edge_key(c, a), t)
+    ok = _remove_user(edges, counters, _edge_key(a, b), t)
+    ok &= _remove_user(edges, counters, _edge_key(b, c), t)
+    ok &= _remove_user(edges, counters, _edge_key(c, a), t)
     mass_units[a] = mass_units[a] - units
     mass_units[b] = mass_units[b] - units
     mass_units[c] = mass_units[c] - units
@@ -163,7 +173,7 @@ def _split(vp, tp, counters, edges, midpoints, left, right, time, max_level):
     would in this split, and calls again.
     """
     key = _edge_key(left, right)
-    packed = edges.get(key, 0)
+    packed = _table.get(edges, key, 0)
     if packed == 0:
         return NOT_HYPOTENUSE
     first, second = (packed & _LOW) - 1, (packed >> 32) - 1
@@ -180,6 +190,9 @@ def _split(vp, tp, counters, edges, midpoints, left, right, time, max_level):
         return NEED_VERTICES
     if counters[_FREE_TRIANGLES] + tp[0].shape[0] - counters[_TRIANGLE_END] < 2 * count:
         return NEED_TRIANGLES
+    if (2 * (counters[_EDGES] + _INDEX_ROOM) > edges.shape[0]
+            or 2 * (counters[_MIDPOINTS] + _INDEX_ROOM) > midpoints.shape[0]):
+        return NEED_INDEX
     m = _new_vertex(vp, counters)
     uv, x, v = vp[0], vp[1], vp[2]
     # The face rule: nothing moves, and the midpoint takes the ends' average
@@ -201,7 +214,7 @@ def _split(vp, tp, counters, edges, midpoints, left, right, time, max_level):
         t = first if i == 0 else second
         tri = tp[0]
         apex, leg_end, hyp_end = tri[t, 0], tri[t, 1], tri[t, 2]
-        ok &= _unlink(edges, mass_units, tp[4], t, apex, leg_end, hyp_end, units)
+        ok &= _unlink(edges, counters, mass_units, tp[4], t, apex, leg_end, hyp_end, units)
         kid0 = _new_triangle(tp, counters)
         kid1 = _new_triangle(tp, counters)
         tri, kid_level, parent, children, birth = tp[0], tp[1], tp[2], tp[3], tp[5]
@@ -213,10 +226,10 @@ def _split(vp, tp, counters, edges, midpoints, left, right, time, max_level):
             kid_level[kid] = level + 1
             parent[kid] = t
             children[kid, 0] = children[kid, 1] = -1
-            ok &= _link(edges, mass_units, tp[4], kid, m, b, c, kid_units)
+            ok &= _link(edges, counters, mass_units, tp[4], kid, m, b, c, kid_units)
             birth[kid] = time
         children[t, 0], children[t, 1] = kid0, kid1
-    midpoints[key] = m
+    counters[_MIDPOINTS] += _table.put(midpoints, key, m)
     counters[_VERSION] += 1
     return OK if ok else INDEX_BROKEN
 
@@ -225,9 +238,9 @@ def _split(vp, tp, counters, edges, midpoints, left, right, time, max_level):
 def _merge(vp, tp, counters, edges, midpoints, left, right, time):
     """Hierarchy48._merge of the sorted edge ``(left, right)``; the status."""
     key = _edge_key(left, right)
-    if key not in midpoints:
+    m = _table.get(midpoints, key, -1)
+    if m < 0:
         return NOT_SPLIT
-    m = midpoints[key]
     tri, level, children, active, birth = tp[0], tp[1], tp[3], tp[4], tp[5]
     parents = vp[6]
     for i in range(2):
@@ -243,12 +256,12 @@ def _merge(vp, tp, counters, edges, midpoints, left, right, time):
             continue
         for j in range(2):
             kid = children[t, j]
-            ok &= _unlink(edges, mass_units, active, kid, tri[kid, 0], tri[kid, 1],
+            ok &= _unlink(edges, counters, mass_units, active, kid, tri[kid, 0], tri[kid, 1],
                           tri[kid, 2], 2.0 ** -level[kid])
             tp[6][counters[_FREE_TRIANGLES]] = kid
             counters[_FREE_TRIANGLES] += 1
         children[t, 0] = children[t, 1] = -1
-        ok &= _link(edges, mass_units, active, t, tri[t, 0], tri[t, 1], tri[t, 2],
+        ok &= _link(edges, counters, mass_units, active, t, tri[t, 0], tri[t, 1], tri[t, 2],
                     2.0 ** -level[t])
         birth[t] = time
     # Momentum (merge_velocity_change written out): m's mass went back to the
@@ -271,7 +284,7 @@ def _merge(vp, tp, counters, edges, midpoints, left, right, time):
         v[m, k] = 0.0
     vp[7][counters[_FREE_VERTICES]] = m
     counters[_FREE_VERTICES] += 1
-    midpoints.pop(key)
+    counters[_MIDPOINTS] -= _table.remove(midpoints, key)
     counters[_VERSION] += 1
     return OK if ok else INDEX_BROKEN
 
@@ -300,7 +313,7 @@ def _refine(vp, tp, counters, edges, midpoints, t, time, max_level, log, logged)
         chain[length, 0], chain[length, 1] = a, b
         length += 1
         key = _edge_key(a, b)
-        packed = edges.get(key, 0)
+        packed = _table.get(edges, key, 0)
         coarser = -1
         for user in ((packed & _LOW) - 1, (packed >> 32) - 1):
             if (coarser < 0 and user >= 0 and user != current
@@ -402,16 +415,16 @@ def _execute(vp, tp, counters, edges, midpoints, direct, refine, merge, energy, 
         a, b = log[j, 1], log[j, 2]
         moved.add(a)
         moved.add(b)
-        m = midpoints[_edge_key(a, b)]
+        m = _table.get(midpoints, _edge_key(a, b), -1)
         for p in range(2):
             if vp[6][m, p] >= 0:
                 _add_triangle_edges(changed, tp[0], vp[6][m, p], False)
     for i in range(merge.shape[0]):
         a, b = merge[i, 0], merge[i, 1]
         key = _edge_key(a, b)
-        if a >= b or key not in midpoints:    # (an unsorted pair is not a key there either)
+        m = _table.get(midpoints, key, -1)
+        if a >= b or m < 0:    # (an unsorted pair is not a key there either)
             continue
-        m = midpoints[key]
         if check_energy and (a in moved or b in moved):
             again = merge_kinetic(vp[2], m, a, b, vp[3][m] * unit_mass, vp[3][a] * unit_mass,
                                   vp[3][b] * unit_mass)
@@ -443,46 +456,6 @@ def _execute(vp, tp, counters, edges, midpoints, direct, refine, merge, energy, 
     return OK, -1, -1
 
 
-@_jit
-def _build_index(edge_keys, edge_users, split_edges, split_midpoints):
-    """Typed dicts of the edge index and the midpoint map, filled in the given
-    order: edges ``(e, 2)`` sorted pairs with users ``(e, 2)`` (-1: none),
-    split edges ``(s, 2)`` with midpoints ``(s,)``."""
-    edges = {np.int64(0): np.int64(0)}
-    edges.pop(np.int64(0))
-    for i in range(edge_keys.shape[0]):
-        packed = edge_users[i, 0] + 1
-        if edge_users[i, 1] >= 0:
-            packed |= (edge_users[i, 1] + 1) << 32
-        edges[_edge_key(edge_keys[i, 0], edge_keys[i, 1])] = packed
-    midpoints = {np.int64(0): np.int64(0)}
-    midpoints.pop(np.int64(0))
-    for i in range(split_edges.shape[0]):
-        midpoints[_edge_key(split_edges[i, 0], split_edges[i, 1])] = split_midpoints[i]
-    return edges, midpoints
-
-
-@_jit
-def _export_index(edges, midpoints):
-    """Inverse of :func:`_build_index`: ``(edge_keys, edge_users, split_edges,
-    split_midpoints)`` in the dicts' (insertion) order."""
-    edge_keys, edge_users = np.empty((len(edges), 2), np.int64), np.empty((len(edges), 2), np.int64)
-    for i, (key, packed) in enumerate(edges.items()):
-        edge_keys[i, 0], edge_keys[i, 1] = key >> 32, key & _LOW
-        edge_users[i, 0], edge_users[i, 1] = (packed & _LOW) - 1, (packed >> 32) - 1
-    split_edges, split_midpoints = np.empty((len(midpoints), 2), np.int64), np.empty(
-        len(midpoints), np.int64)
-    for i, (key, m) in enumerate(midpoints.items()):
-        split_edges[i, 0], split_edges[i, 1], split_midpoints[i] = key >> 32, key & _LOW, m
-    return edge_keys, edge_users, split_edges, split_midpoints
-
-
-@_jit
-def _users_of(edges, a, b):
-    """Packed users of the edge ``(a, b)`` (0: not an edge)."""
-    return edges.get(_edge_key(a, b), 0)
-
-
 class CompiledIndex:
     """The edge index, midpoint map and free lists of a hierarchy in the
     kernels' form (module docstring), built from the reference's containers.
@@ -496,14 +469,16 @@ class CompiledIndex:
 
     def __init__(self, edges: dict, midpoint: dict, free_vertices: list,
                  free_triangles: list, vertex_capacity: int, triangle_capacity: int):
-        edge_keys = np.array(list(edges), dtype=np.int64).reshape(-1, 2)
-        users = np.array([(u[0], u[1] if len(u) > 1 else -1) for u in edges.values()],
-                         dtype=np.int64).reshape(-1, 2)
         if any(len(u) > 2 for u in edges.values()):
             raise ValueError("an edge with more than two triangles")
-        split_edges = np.array(list(midpoint), dtype=np.int64).reshape(-1, 2)
-        self.edges, self.midpoints = _build_index(
-            edge_keys, users, split_edges, np.array(list(midpoint.values()), dtype=np.int64))
+        pairs = np.array(list(edges), dtype=np.int64).reshape(-1, 2)
+        users = np.array([(u[0], u[1] if len(u) > 1 else -1) for u in edges.values()],
+                         dtype=np.int64).reshape(-1, 2) + 1
+        self.edges = _table.build(_packed(pairs), users[:, 0] | (users[:, 1] << 32))
+        split = np.array(list(midpoint), dtype=np.int64).reshape(-1, 2)
+        self.midpoints = _table.build(_packed(split),
+                                      np.array(list(midpoint.values()), dtype=np.int64))
+        self.edge_count, self.midpoint_count = len(pairs), len(split)
         self.free_vertex_stack = np.zeros(vertex_capacity, np.int64)
         self.free_vertex_stack[:len(free_vertices)] = free_vertices
         self.free_triangle_stack = np.zeros(triangle_capacity, np.int64)
@@ -511,11 +486,15 @@ class CompiledIndex:
         self.free_vertex_count, self.free_triangle_count = len(free_vertices), len(free_triangles)
 
     def to_python(self) -> tuple[dict, dict, list, list]:
-        """The reference's ``(edges, midpoint, free_vertices, free_triangles)``."""
-        edge_keys, users, split_edges, mids = _export_index(self.edges, self.midpoints)
-        edges = {(a, b): [t for t in pair if t >= 0]
-                 for (a, b), pair in zip(edge_keys.tolist(), users.tolist())}
-        midpoint = {(a, b): m for (a, b), m in zip(split_edges.tolist(), mids.tolist())}
+        """The reference's ``(edges, midpoint, free_vertices, free_triangles)``
+        (the dicts in the order of their keys: their order means nothing)."""
+        keys, packed = _table.items(self.edges)
+        edges = {(a, b): [t - 1 for t in pair if t]
+                 for a, b, *pair in zip((keys >> 32).tolist(), (keys & _LOW).tolist(),
+                                        (packed & _LOW).tolist(), (packed >> 32).tolist())}
+        keys, mids = _table.items(self.midpoints)
+        midpoint = {(a, b): m for a, b, m in zip((keys >> 32).tolist(), (keys & _LOW).tolist(),
+                                                 mids.tolist())}
         return (edges, midpoint, self.free_vertex_stack[:self.free_vertex_count].tolist(),
                 self.free_triangle_stack[:self.free_triangle_count].tolist())
 
@@ -523,8 +502,18 @@ class CompiledIndex:
         """Active triangles on the edge ``(a, b)`` in the reference's list order."""
         if not (0 <= a < 2**31 and 0 <= b < 2**31):
             return []
-        packed = int(_users_of(self.edges, int(a), int(b)))
+        packed = int(_table.get(self.edges, int(_edge_key(int(a), int(b))), 0))
         return [t - 1 for t in (packed & _LOW, packed >> 32) if t]
+
+    def grow(self) -> None:
+        """Both tables rehashed to at most a third full (a kernel found one half full)."""
+        self.edges = _table.grown(self.edges, self.edge_count)
+        self.midpoints = _table.grown(self.midpoints, self.midpoint_count)
+
+
+def _packed(pairs: np.ndarray) -> np.ndarray:
+    """``(k, 2)`` sorted vertex pairs as the kernels' int64 keys ``lo << 32 | hi``."""
+    return (pairs[:, 0] << 32) | pairs[:, 1]
 
 
 _EMPTY_OPS, _EMPTY_EDGES = np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64)
@@ -553,7 +542,8 @@ def execute(hierarchy, index: CompiledIndex, time: float, direct=_EMPTY_OPS, ref
     """
     h = hierarchy
     counters = np.array([h.vertex_end, h.tri_end, index.free_vertex_count,
-                         index.free_triangle_count, h.version], dtype=np.int64)
+                         index.free_triangle_count, h.version, index.edge_count,
+                         index.midpoint_count], dtype=np.int64)
     check_energy = energy is not None
     if not check_energy:
         energy = kinetic = bound = _EMPTY_VALUES
@@ -574,17 +564,22 @@ def execute(hierarchy, index: CompiledIndex, time: float, direct=_EMPTY_OPS, ref
         elif status == NEED_TRIANGLES:
             h._grow_triangles()
             index.free_triangle_stack = np.resize(index.free_triangle_stack, len(h.tri))
+        elif status == NEED_INDEX:
+            index.edge_count, index.midpoint_count = int(counters[_EDGES]), int(
+                counters[_MIDPOINTS])
+            index.grow()
         else:
             break
     (h.vertex_end, h.tri_end, index.free_vertex_count, index.free_triangle_count,
-     h.version) = counters.tolist()
+     h.version, index.edge_count, index.midpoint_count) = counters.tolist()
     return int(status), (int(left), int(right)), log[:resume[2]], int(resume[3]), int(resume[4])
 
 
 def warm_up() -> None:
     """Compile or load these kernels on a one-block hierarchy (a refine with
     forced splits, a direct split and merge, a decision with a kinetic
-    re-test), so no timed step pays for it.  Nothing without numba."""
+    re-test, the index tables' growth and export), so no timed step pays
+    for it.  Nothing without numba."""
     if not enabled():
         return
     from .hierarchy import Hierarchy48, Merge, Split
@@ -595,6 +590,10 @@ def warm_up() -> None:
     h.apply(Merge(ops[-1].edge))
     h.apply(Split(ops[-1].edge))
     index = h._kernel_index()
+    index.edge_count += 10**4       # as if nearly full: the tables grow (int_table's rehash)
+    index.grow()
+    index.edge_count -= 10**4
+    index.to_python()
     execute(h, index, 0.0, refine=np.zeros(1, np.int64),
             merge=np.array([ops[0].edge], np.int64), energy=np.zeros(1),
             kinetic=np.zeros(1), bound=np.ones(1))

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import lod_kernels
+from . import lod_kernels, round_kernels
 from .forces import Elements
 from .kernels import hinge_angles       # compiled when numba is there
 from .hierarchy import Hierarchy48, Merge
@@ -291,6 +291,21 @@ class LodPolicy:
             merge = [(a, b) for a, b in hierarchy.vertex_edge[vertices[keep]].tolist()]
             energy, kinetic, bound = added.total[low], added.kinetic[low], bound[low]
         return LodDecision(refine, merge, energy, kinetic, bound)
+
+    def recheck_on_pools(self, hierarchy: Hierarchy48, time: float, merged,
+                         detail_points: np.ndarray | None, lookahead: float):
+        """The refinements :meth:`decide` makes with ``simplify`` off and
+        ``recheck=merged`` on the mesh the hierarchy has now, found on its pools
+        (:mod:`~cloth_lod_ros.sim.round_kernels`): the same list, without
+        adopting the mesh first.  For a check's later rounds when no contact
+        counts (``in_contact`` None) and no layer is near (``layered`` None).
+        None when the kernels are off or cannot take the hierarchy: then adopt
+        and :meth:`decide`."""
+        detail = self._detail_triangles(None, hierarchy, hierarchy.active_triangles(),
+                                        detail_points, None)
+        return round_kernels.changed_hinge_refinements(
+            hierarchy, time, merged, self.material.bend_stiffness, lookahead,
+            self.config.refine_threshold, detail)
 
     def _detail_triangles(self, elements, hierarchy, triangle_ids, detail_points,
                           in_contact) -> np.ndarray:
