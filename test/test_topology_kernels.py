@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from cloth_lod_ros.sim import ClothSim, kernels, linear, topology_kernels as tk
+from cloth_lod_ros.sim import ClothSim, kernels, linear, pattern_kernels as pk
+from cloth_lod_ros.sim import topology_kernels as tk
 from cloth_lod_ros.sim import forces, mesh48
 from cloth_lod_ros.sim.config import load_scene
 from cloth_lod_ros.sim.mesh48 import MeshError, RestMesh, base_mesh, refine_uniform
@@ -40,11 +41,13 @@ def _build(mesh, compiled):
     storage = linear.PatternStorage()
     pattern = linear.SparsePattern(elements.vertex_count,
                                    [elements.triangles, elements.hinge_vertices], storage)
-    # What a solver builds: the hinges' pairs from their triangles' when compiled.
-    from_triangles = linear.SparsePattern(elements.vertex_count,
-                                          [elements.triangles, elements.hinge_vertices],
-                                          hinge_triangles=elements.hinge_triangles)
-    return hinges, elements, pattern, from_triangles
+    # What a solver builds: from the mesh's edge structure when compiled.
+    assert (elements.edges is not None) == compiled
+    from_edges = linear.SparsePattern(elements.vertex_count,
+                                      [elements.triangles, elements.hinge_vertices],
+                                      edges=elements.edges,
+                                      hinge_triangles=elements.hinge_triangles)
+    return hinges, elements, pattern, from_edges
 
 
 def _check(mesh):
@@ -123,18 +126,29 @@ def test_errors_and_fallbacks_are_the_reference_ones():
     _same(hinges.boundary_edges, reference.boundary_edges)
 
 
-def test_pattern_from_triangles_falls_back_when_hinges_do_not_fit():
+def test_pattern_from_edges_falls_back_when_the_structure_does_not_fit():
     kernels.use(True)
     elements = tk.precompute(refine_uniform(base_mesh(1.0, 1.0, 2, 2), 2))
     kinds = [elements.triangles, elements.hinge_vertices]
     reference = linear.SparsePattern(elements.vertex_count, kinds)
-    for broken in (elements.hinge_triangles[:, ::-1], elements.hinge_triangles + 10**6,
-                   np.zeros_like(elements.hinge_triangles)):
-        slots = np.empty(len(reference._owned), np.int64)
-        assert tk._mesh_pattern(elements.vertex_count, kinds[0], kinds[1],
-                                np.ascontiguousarray(broken), slots,
-                                np.empty(10**5, np.int64))[0] is False
-        pattern = linear.SparsePattern(elements.vertex_count, kinds, hinge_triangles=broken)
+    ends, half_edge, corner = elements.edges
+    slots = np.empty(len(reference._owned), np.int64)
+    assert pk._edge_pattern(elements.vertex_count, kinds[0], kinds[1],
+                            elements.hinge_triangles, ends, half_edge, corner, slots)[0]
+    extra = np.vstack([ends, [[0, elements.vertex_count - 1]]])   # an edge no triangle has
+    for edges, triangles in (
+            ((ends, half_edge, corner), elements.hinge_triangles[:, ::-1]),
+            ((ends, half_edge, corner), elements.hinge_triangles + 10**6),
+            ((ends, half_edge, corner), np.zeros_like(elements.hinge_triangles)),
+            ((ends[::-1].copy(), half_edge, corner), elements.hinge_triangles),
+            ((ends + 1, half_edge, corner), elements.hinge_triangles),
+            ((extra, half_edge, corner), elements.hinge_triangles),
+            ((ends, np.roll(half_edge, 1), corner), elements.hinge_triangles),
+            ((ends, half_edge, (corner + 1) % 3), elements.hinge_triangles)):
+        assert not pk._edge_pattern(elements.vertex_count, kinds[0], kinds[1],
+                                    np.ascontiguousarray(triangles), *edges, slots)[0]
+        pattern = linear.SparsePattern(elements.vertex_count, kinds, edges=edges,
+                                       hinge_triangles=triangles)
         for name in ("indices", "indptr", "diagonal_block", "_all_slots"):
             _same(getattr(reference, name), getattr(pattern, name))
 
@@ -144,7 +158,8 @@ def test_numpy_switch_uses_the_reference(monkeypatch):
     mesh = base_mesh(1.0, 1.0, 1, 1)
     monkeypatch.setattr(tk, "_element_data", None)
     monkeypatch.setattr(tk, "_hinges", None)
-    monkeypatch.setattr(tk, "_pattern", None)
+    monkeypatch.setattr(pk, "_pattern", None)
+    monkeypatch.setattr(pk, "_edge_pattern", None)
     elements = tk.precompute(mesh)
     _same(elements.area, forces.precompute(_fresh(mesh)).area)
-    assert tk.sparse_pattern(4, [elements.triangles], np.empty(81, np.int64)) is None
+    assert pk.sparse_pattern(4, [elements.triangles], np.empty(81, np.int64)) is None

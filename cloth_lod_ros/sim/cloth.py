@@ -35,7 +35,8 @@ from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_
 from .contact import nearest_surface
 from .forces import Elements, air_power
 from . import (compact_kernels, hierarchy_kernels, kernels, lod_kernels, multigrid_kernels,
-               projection_kernels, round_kernels, self_kernels, topology_kernels)
+               pattern_kernels, projection_kernels, round_kernels, self_kernels,
+               topology_kernels)
 from .topology_kernels import precompute   # compiled when numba is there
 from .kernels import elastic_energies   # compiled when numba is there
 from .grasps import Grasp
@@ -118,6 +119,7 @@ def warm_up_compiled_code() -> float:
                                    ["cloth.level=2", "self_collision.enabled=true"]))
         tiny.step()
         topology_kernels.warm_up()  # a topology change's kernels, whatever the tiny step did
+        pattern_kernels.warm_up()   # and its sparsity pattern's
         hierarchy_kernels.warm_up()  # split/merge and a whole LOD decision
         self_kernels.warm_up()      # the broad phase's kernels a folded cloth needs
         projection_kernels.warm_up()  # sliding contacts' projection, if the tiny step had none

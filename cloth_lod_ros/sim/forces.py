@@ -65,14 +65,13 @@ class Elements:
         area: ``(t,)`` rest areas, m².
         coef_u, coef_v: ``(t, 3)`` coefficients (1/m) with
             ``w_u = Σ_k coef_u[k] x_k`` and ``w_v = Σ_k coef_v[k] x_k``.
-        hinge_vertices: ``(h, 4)`` ``(e0, e1, o0, o1)``: shared edge then the
-            opposite vertex of each triangle.
+        hinge_vertices: ``(h, 4)`` ``(e0, e1, o0, o1)``: shared edge, opposite vertices.
         hinge_weight: ``(h,)`` dimensionless ``c_e`` (see module docstring).
         hinge_triangles: ``(h, 2)`` the two triangles of each hinge.
         vertex_count: number of vertices.
-        coef_u_cm, coef_v_cm, triangles_cm: ``(3, t)`` contiguous transposes
-            of ``coef_u``, ``coef_v``, ``triangles`` (derived: the
-            component-major computations read whole rows of them).
+        edges: edge structure for the sparsity pattern, or None (mesh48.Hinges.edges).
+        coef_u_cm, coef_v_cm, triangles_cm: ``(3, t)`` contiguous transposes of
+            ``coef_u``, ``coef_v``, ``triangles`` (the component-major code reads rows).
     """
 
     triangles: np.ndarray
@@ -83,6 +82,7 @@ class Elements:
     hinge_weight: np.ndarray
     hinge_triangles: np.ndarray
     vertex_count: int
+    edges: tuple | None = field(default=None, repr=False)
     coef_u_cm: np.ndarray = field(init=False, repr=False)
     coef_v_cm: np.ndarray = field(init=False, repr=False)
     triangles_cm: np.ndarray = field(init=False, repr=False)

@@ -179,7 +179,7 @@ class ImplicitStageSolver:
         start = _time.perf_counter()
         self._pattern = SparsePattern(elements.vertex_count,
                                       [elements.triangles, elements.hinge_vertices],
-                                      storage=self._pattern_storage,
+                                      storage=self._pattern_storage, edges=elements.edges,
                                       hinge_triangles=elements.hinge_triangles)
         self.backend.reset_topology(self._pattern, self._uv,
                                     graded=self._graded)

@@ -164,6 +164,10 @@ class Hinges:
         is_hypotenuse: ``(hinge_count, 2)`` whether the edge is that triangle's
             hypotenuse.
         boundary_edges: ``(boundary_count, 2)`` edges with one triangle.
+        edges: from the compiled build only (None from this module's), the
+            edge structure the sparsity pattern is built from:
+            ``(ends (e, 2), half_edge (3t,), corner (hinge_count, 2))``
+            (:func:`cloth_lod_ros.sim.topology_kernels._hinges`).
     """
 
     edge: np.ndarray
@@ -171,6 +175,7 @@ class Hinges:
     triangles: np.ndarray
     is_hypotenuse: np.ndarray
     boundary_edges: np.ndarray
+    edges: tuple | None = None
 
 
 def uniform_vertices_within(width: float, height: float, block: float, level: int,
