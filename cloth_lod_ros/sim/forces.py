@@ -46,6 +46,7 @@ So every kept block is negative semi-definite and the system matrix
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -83,14 +84,11 @@ class Elements:
     hinge_triangles: np.ndarray
     vertex_count: int
     edges: tuple | None = field(default=None, repr=False)
-    coef_u_cm: np.ndarray = field(init=False, repr=False)
-    coef_v_cm: np.ndarray = field(init=False, repr=False)
-    triangles_cm: np.ndarray = field(init=False, repr=False)
 
-    def __post_init__(self):
-        object.__setattr__(self, "coef_u_cm", np.ascontiguousarray(self.coef_u.T))
-        object.__setattr__(self, "coef_v_cm", np.ascontiguousarray(self.coef_v.T))
-        object.__setattr__(self, "triangles_cm", np.ascontiguousarray(self.triangles.T))
+    # Made when first read (only the numpy evaluation reads them), once per topology.
+    coef_u_cm = cached_property(lambda self: np.ascontiguousarray(self.coef_u.T))
+    coef_v_cm = cached_property(lambda self: np.ascontiguousarray(self.coef_v.T))
+    triangles_cm = cached_property(lambda self: np.ascontiguousarray(self.triangles.T))
 
 
 def precompute(mesh: RestMesh) -> Elements:

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import lod_kernels, round_kernels
+from . import check_kernels, lod_kernels, round_kernels
 from .forces import Elements
 from .kernels import hinge_angles       # compiled when numba is there
 from .hierarchy import Hierarchy48, Merge
@@ -205,6 +205,23 @@ class LodPolicy:
                 refinement now.  The same decision, for less.
         """
         cfg = self.config
+        detail = self._detail_triangles(elements, hierarchy, triangle_ids, detail_points,
+                                        in_contact)
+        layers_near = layered is not None and layered.any()
+        if layers_near and layered_level > 0:
+            near = layered[elements.triangles].any(axis=1)
+            low = hierarchy.level[triangle_ids] < layered_level
+            detail = np.union1d(detail, triangle_ids[near & low])
+        if (evaluation is None and recheck is None and supported is None and not layers_near
+                and not (in_contact is not None and (in_contact > 1).any())
+                and not (cfg.detail_level > 0 and detail_points is not None
+                         and len(detail_points))):
+            # No filter between the steps below: all of them in one compiled call.
+            plain = check_kernels.plain_decision(
+                hierarchy, elements, vertex_ids, triangle_ids, x, v, masses, time, held, cfg,
+                self.material, self.gravity, lookahead, detail, simplify)
+            if plain is not None:
+                return LodDecision(*plain)
         hinges, hinge_tris = elements, elements.hinge_triangles
         if recheck is not None and not simplify and evaluation is None:
             changed = changed_hinges(elements, hierarchy, vertex_ids, triangle_ids, time,
@@ -215,12 +232,6 @@ class LodPolicy:
         measures, deviation = _criterion(hinges, self.material.bend_stiffness, x, v,
                                          evaluation, lookahead)
         # Refine: both triangles of each over-curved hinge, most curved first.
-        detail = self._detail_triangles(elements, hierarchy, triangle_ids, detail_points,
-                                        in_contact)
-        if layered is not None and layered_level > 0 and layered.any():
-            near = layered[elements.triangles].any(axis=1)
-            low = hierarchy.level[triangle_ids] < layered_level
-            detail = np.union1d(detail, triangle_ids[near & low])
         refine = lod_kernels.refine_order(deviation, cfg.refine_threshold, hinge_tris,
                                           triangle_ids, hierarchy.level, hierarchy.max_level,
                                           detail)
