@@ -43,7 +43,7 @@ def _checked_recheck(monkeypatch):
                            copied.v[vertex_ids], copied.masses[vertex_ids], time,
                            np.zeros(0, dtype=np.int64), detail_points=detail_points,
                            simplify=False, lookahead=lookahead, recheck=merged)
-        assert ours == full.refine
+        assert ours.dtype == np.int64 and ours.tolist() == full.refine
         seen.append(len(ours))
         return ours
 

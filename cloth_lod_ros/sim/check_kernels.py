@@ -25,6 +25,7 @@ __all__ = ["plain_decision", "warm_up"]
 
 _jit = _kernels._jit
 _as_index, _as_float = _kernels._as_index, _kernels._as_float
+_NOTHING_HELD = np.zeros(0, dtype=np.int64)
 
 
 @_jit
@@ -75,6 +76,8 @@ def plain_decision(hierarchy, elements, vertex_ids, triangle_ids, x, v, masses, 
         return None
     h = hierarchy
     x, hv = _as_float(x), _as_index(elements.hinge_vertices).reshape(-1, 4)
+    # (A read-only array is another type to numba: a compilation mid-run.)
+    held = np.array(held, dtype=np.int64).ravel() if simplify else _NOTHING_HELD
     ok, refine, kept, delta, kinetic, area, mid, offset = _plain(
         hv, _as_float(elements.hinge_weight), _as_index(elements.hinge_triangles).reshape(-1, 2),
         _as_index(triangle_ids), x, _as_float(v), float(material.bend_stiffness),
@@ -83,7 +86,7 @@ def plain_decision(hierarchy, elements, vertex_ids, triangle_ids, x, v, masses, 
         _as_index(h.vertex_parents), _as_index(h.children), h.tri_active,
         float(config.coarsen_threshold), float(config.max_hinge_rate),
         float(config.max_bend_force), _as_index(vertex_ids), _as_float(h.birth),
-        float(time - config.min_lifetime), _as_index(np.asarray(held)).ravel(),
+        float(time - config.min_lifetime), held,
         _as_index(h.vertex_edge), _as_index(h.tri), _as_float(h.uv),
         _as_index(elements.triangles), _as_float(elements.coef_u), _as_float(elements.coef_v),
         _as_float(elements.area), _as_float(masses), float(material.stretch_stiffness),

@@ -92,6 +92,7 @@ _NO_NODES = np.zeros(0, dtype=np.int64)
 _NO_POINTS = np.zeros((0, 2))
 _NO_NODES.setflags(write=False)
 _NO_POINTS.setflags(write=False)
+_NO_EDGES = np.zeros((0, 2), dtype=np.int64)   # writeable: numba types read-only arrays apart
 
 
 class ClothSim(HeldInputs, ObstacleInputs):
@@ -428,12 +429,13 @@ class ClothSim(HeldInputs, ObstacleInputs):
                 refine = self.lod_policy.recheck_on_pools(h, time, recheck, detail_points,
                                                           lookahead)
                 if refine is not None:
-                    if not refine:
+                    if not len(refine):
                         break
                     recheck = []
                     before = h.active_vertices() if self.obstacles else None
-                    splits, _ = LodPolicy.apply(h, LodDecision(refine, []), time,
-                                                log=self._step_operations)
+                    done = h.carry_out(refine, _NO_EDGES, time, log=self._step_operations)
+                    splits, _ = done if done is not None else LodPolicy.apply(
+                        h, LodDecision(refine.tolist(), []), time, log=self._step_operations)
                     if self.obstacles and splits:
                         self._lift_new_particles(before)
                     total_splits += splits

@@ -124,6 +124,9 @@ def _criterion(elements: Elements, bend_stiffness: float, x: np.ndarray, v: np.n
     return measures, deviation
 
 
+_NO_TRIANGLES = np.zeros(0, dtype=np.int64)   # writeable: numba types read-only arrays apart
+
+
 @dataclass
 class LodDecision:
     """Pool triangle ids to refine (most curved first) and split edges to merge.
@@ -311,9 +314,10 @@ class LodPolicy:
         adopting the mesh first.  For a check's later rounds when no contact
         counts (``in_contact`` None) and no layer is near (``layered`` None).
         None when the kernels are off or cannot take the hierarchy: then adopt
-        and :meth:`decide`."""
-        detail = self._detail_triangles(None, hierarchy, hierarchy.active_triangles(),
-                                        detail_points, None)
+        and :meth:`decide`.  The refinements as a ``(r,)`` int64 array."""
+        detail = (self._detail_triangles(None, hierarchy, hierarchy.active_triangles(),
+                                         detail_points, None)
+                  if self.config.detail_level > 0 else _NO_TRIANGLES)
         return round_kernels.changed_hinge_refinements(
             hierarchy, time, merged, self.material.bend_stiffness, lookahead,
             self.config.refine_threshold, detail)

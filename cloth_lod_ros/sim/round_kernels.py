@@ -150,7 +150,7 @@ def changed_hinge_refinements(hierarchy, time: float, merged, bend_stiffness: fl
                               lookahead: float, threshold: float, detail: np.ndarray):
     """The refinements :meth:`~cloth_lod_ros.sim.lod.LodPolicy.decide` would
     choose with ``simplify`` off and ``recheck=merged`` on the mesh adopted now
-    (Python list of pool triangle ids), without adopting it; None when the
+    (``(r,)`` int64 pool triangle ids, in order), without adopting it; None when the
     kernels are off or the index disagrees with the pools (then adopt and
     decide).
 
@@ -171,7 +171,7 @@ def changed_hinge_refinements(hierarchy, time: float, merged, bend_stiffness: fl
                               index.edges, h.uv, h.x, h.v, h.level, int(h.max_level),
                               float(bend_stiffness), float(lookahead), float(threshold),
                               np.ascontiguousarray(detail, dtype=np.int64).reshape(-1))
-    return refine.tolist() if ok else None
+    return refine if ok else None
 
 
 def warm_up() -> None:
