@@ -35,7 +35,7 @@ from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_
 from .contact import nearest_surface
 from .forces import Elements, air_power
 from .warm_up import warm_up_compiled_code
-from .topology_kernels import precompute   # compiled when numba is there
+from .topology_kernels import adopt as adopt_compiled, precompute   # compiled with numba
 from .kernels import elastic_energies   # compiled when numba is there
 from .grasps import Grasp
 from .held import HeldInputs
@@ -186,11 +186,17 @@ class ClothSim(HeldInputs, ObstacleInputs):
     def _adopt_hierarchy(self) -> None:
         """Refresh the compact arrays after the hierarchy's topology changed."""
         h = self.hierarchy
-        self.mesh, self.vertex_ids, self.triangle_ids = h.active_mesh()
-        self.elements = precompute(self.mesh)
-        # (h.masses is the whole pool's; a gather copies, no .copy() needed)
-        self.masses = h.mass_units[self.vertex_ids] * h.unit_mass
-        self.state = ClothState(h.x[self.vertex_ids], h.v[self.vertex_ids], self.state.time)
+        adopted = adopt_compiled(h)         # all of it in one compiled call, or None
+        if adopted is not None:
+            self.mesh, self.vertex_ids, self.triangle_ids, self.elements, self.masses, x, v = \
+                adopted
+        else:
+            self.mesh, self.vertex_ids, self.triangle_ids = h.active_mesh()
+            self.elements = precompute(self.mesh)
+            # (h.masses is the whole pool's; a gather copies, no .copy() needed)
+            self.masses = h.mass_units[self.vertex_ids] * h.unit_mass
+            x, v = h.x[self.vertex_ids], h.v[self.vertex_ids]
+        self.state = ClothState(x, v, self.state.time)
         # The sparsity pattern is built by the first solve on this topology:
         # a LOD pass that refines in rounds adopts several meshes in a row.
         levels = self.mesh.levels

@@ -24,10 +24,11 @@ from __future__ import annotations
 import numpy as np
 
 from . import forces as _forces
+from .compact_kernels import _active_mesh
 from . import kernels as _kernels
 from . import mesh48 as _mesh48
 
-__all__ = ["build_hinges", "precompute", "warm_up"]
+__all__ = ["adopt", "build_hinges", "precompute", "warm_up"]
 
 _jit = _kernels._jit
 
@@ -248,6 +249,62 @@ def precompute(mesh: _mesh48.RestMesh) -> _forces.Elements:
         vertex_count=mesh.vertex_count, edges=hinges.edges)
 
 
+@_jit
+def _adopt(vertex_active, vertex_end, tri_active, tri_end, pool_uv, pool_tri, pool_level,
+           mass_units, unit_mass, pool_x, pool_v):
+    """A topology change's whole refresh from a hierarchy's pools in one call:
+    compact_kernels._active_mesh, the compact particles' masses (kg), positions
+    and velocities, and :func:`_mesh_elements` of the compact mesh.  Returns
+    ``(ok, active_mesh's five arrays, masses, x, v, _mesh_elements' tuple)``;
+    ok False when either part declines (then the separate calls run)."""
+    ok, vertex_ids, triangle_ids, uv, tri, levels = _active_mesh(
+        vertex_active, vertex_end, tri_active, tri_end, pool_uv, pool_tri, pool_level)
+    n = vertex_ids.shape[0]
+    masses, x, v = np.empty(n), np.empty((n, 3)), np.empty((n, 3))
+    for i in range(n):
+        p = vertex_ids[i]
+        masses[i] = mass_units[p] * unit_mass
+        for d in range(3):
+            x[i, d], v[i, d] = pool_x[p, d], pool_v[p, d]
+    elements = _mesh_elements(uv, tri, n)
+    ok = ok and elements[0][0] == 0 and elements[1]
+    return ok, vertex_ids, triangle_ids, uv, tri, levels, masses, x, v, elements
+
+
+def adopt(hierarchy):
+    """The compact mesh of a hierarchy with its element data and state:
+    ``(mesh, vertex_ids, triangle_ids, elements, masses (n,) kg, x, v (n, 3)
+    m, m/s)``, the same arrays bitwise as
+    :meth:`~cloth_lod_ros.sim.hierarchy.Hierarchy48.active_mesh`, :func:`precompute`
+    and the pools' gathers; None when the kernels are off or decline (then
+    make those calls)."""
+    h = hierarchy
+    if (not _kernels.enabled() or h.uv.dtype != np.float64 or h.tri.dtype != np.int64
+            or h.level.dtype != np.int64 or h.vertex_active.dtype != np.bool_
+            or h.tri_active.dtype != np.bool_ or h.uv.ndim != 2 or h.uv.shape[1] != 2
+            or h.mass_units.dtype != np.float64 or h.x.dtype != np.float64
+            or h.v.dtype != np.float64):
+        return None
+    ok, vertex_ids, triangle_ids, uv, tri, levels, masses, x, v, built = _adopt(
+        h.vertex_active, int(h.vertex_end), h.tri_active, int(h.tri_end),
+        np.ascontiguousarray(h.uv), np.ascontiguousarray(h.tri), h.level, h.mass_units,
+        float(h.unit_mass), np.ascontiguousarray(h.x), np.ascontiguousarray(h.v))
+    if not ok:
+        return None
+    (_, edge, opposite, tris, hyp, border, ends, half_edge, corner), _, area, coef_u, coef_v, \
+        hv, weight = built
+    mesh = _mesh48.RestMesh(uv=uv, triangles=tri, levels=levels, width=h.width,
+                            height=h.height)
+    edges = (ends, half_edge, corner)
+    mesh._cache["hinges"] = _mesh48.Hinges(edge=edge, opposite=opposite, triangles=tris,
+                                           is_hypotenuse=hyp, boundary_edges=border,
+                                           edges=edges)
+    elements = _forces.Elements(triangles=tri.copy(), area=area, coef_u=coef_u, coef_v=coef_v,
+                                hinge_vertices=hv, hinge_weight=weight, hinge_triangles=tris,
+                                vertex_count=len(vertex_ids), edges=edges)
+    return mesh, vertex_ids, triangle_ids, elements, masses, x, v
+
+
 def warm_up() -> None:
     """Compile or load these kernels (the signatures a simulation calls) on
     a one-block mesh, so no timed step pays for it.  Nothing without numba."""
@@ -257,3 +314,5 @@ def warm_up() -> None:
     precompute(mesh)                            # a new mesh: _mesh_elements
     precompute(mesh)                            # its hinges known: _element_data
     build_hinges(mesh.triangles, mesh.vertex_count)
+    from .hierarchy import Hierarchy48
+    adopt(Hierarchy48(mesh, np.column_stack([mesh.uv, np.zeros(mesh.vertex_count)]), 0.1, 2))
