@@ -63,6 +63,31 @@ def _plain(hv, weight, ht, triangle_ids, x, v, kb, lookahead, threshold, level, 
     return True, out[:written], kept, delta, kinetic, diamond_area, mid, offset
 
 
+@_jit
+def _kept(kept, delta, kinetic, mass_of_mid, gravity_offset, area, half_density, speed2,
+          vertex_edge):
+    """merge_energy_change's last line and test (e) of decide, their operations in
+    their order: ``delta + (kinetic + m · (offset · g))`` against ``(½ ρ) A v²``.
+    Returns the merges that pass: ``(edges (k, 2), energy, kinetic, bound)``."""
+    count = kept.shape[0]
+    total, bound = np.empty(count), np.empty(count)
+    passing = 0
+    for i in range(count):
+        total[i] = delta[i] + (kinetic[i] + mass_of_mid[i] * gravity_offset[i])
+        bound[i] = half_density * area[i] * speed2
+        if total[i] <= bound[i]:
+            passing += 1
+    edges = np.empty((passing, 2), np.int64)
+    energy, kept_kinetic, kept_bound = np.empty(passing), np.empty(passing), np.empty(passing)
+    j = 0
+    for i in range(count):
+        if total[i] <= bound[i]:
+            edges[j, 0], edges[j, 1] = vertex_edge[kept[i], 0], vertex_edge[kept[i], 1]
+            energy[j], kept_kinetic[j], kept_bound[j] = total[i], kinetic[i], bound[i]
+            j += 1
+    return edges, energy, kept_kinetic, kept_bound
+
+
 def plain_decision(hierarchy, elements, vertex_ids, triangle_ids, x, v, masses, time, held,
                    config, material, gravity, lookahead: float, detail: np.ndarray,
                    simplify: bool):
@@ -74,20 +99,20 @@ def plain_decision(hierarchy, elements, vertex_ids, triangle_ids, x, v, masses, 
     detail: the pool triangles to refine for detail."""
     if not _kernels.enabled():
         return None
-    h = hierarchy
+    h = hierarchy            # (its pools are contiguous with fixed dtypes, as the kernels take them)
     x, hv = _as_float(x), _as_index(elements.hinge_vertices).reshape(-1, 4)
     # (A read-only array is another type to numba: a compilation mid-run.)
     held = np.array(held, dtype=np.int64).ravel() if simplify else _NOTHING_HELD
     ok, refine, kept, delta, kinetic, area, mid, offset = _plain(
         hv, _as_float(elements.hinge_weight), _as_index(elements.hinge_triangles).reshape(-1, 2),
         _as_index(triangle_ids), x, _as_float(v), float(material.bend_stiffness),
-        float(lookahead), float(config.refine_threshold), _as_index(h.level), int(h.max_level),
+        float(lookahead), float(config.refine_threshold), h.level, int(h.max_level),
         _as_index(detail).ravel(), bool(simplify), h.vertex_active, int(h.vertex_end),
-        _as_index(h.vertex_parents), _as_index(h.children), h.tri_active,
+        h.vertex_parents, h.children, h.tri_active,
         float(config.coarsen_threshold), float(config.max_hinge_rate),
-        float(config.max_bend_force), _as_index(vertex_ids), _as_float(h.birth),
+        float(config.max_bend_force), _as_index(vertex_ids), h.birth,
         float(time - config.min_lifetime), held,
-        _as_index(h.vertex_edge), _as_index(h.tri), _as_float(h.uv),
+        h.vertex_edge, h.tri, h.uv,
         _as_index(elements.triangles), _as_float(elements.coef_u), _as_float(elements.coef_v),
         _as_float(elements.area), _as_float(masses), float(material.stretch_stiffness),
         float(material.shear_stiffness))
@@ -95,12 +120,12 @@ def plain_decision(hierarchy, elements, vertex_ids, triangle_ids, x, v, masses, 
         return None
     if not len(kept):
         return refine.tolist(), [], np.zeros(0), np.zeros(0), np.zeros(0)
-    # The gravity term as merge_energy_change adds it (BLAS's order), then test (e).
-    delta += kinetic + masses[mid] * (offset @ np.asarray(gravity, dtype=float))
-    bound = 0.5 * material.density * area * config.max_merge_speed**2
-    low = delta <= bound
-    merge = [(a, b) for a, b in h.vertex_edge[kept[low]].tolist()]
-    return refine.tolist(), merge, delta[low], kinetic[low], bound[low]
+    # The gravity term's product as merge_energy_change makes it (BLAS's order).
+    gravity_offset = offset @ np.asarray(gravity, dtype=float)
+    edges, energy, kinetic, bound = _kept(kept, delta, kinetic, masses[mid], gravity_offset,
+                                          area, 0.5 * material.density,
+                                          config.max_merge_speed**2, h.vertex_edge)
+    return refine.tolist(), list(map(tuple, edges.tolist())), energy, kinetic, bound
 
 
 def warm_up() -> None:
