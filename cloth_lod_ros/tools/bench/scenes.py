@@ -7,7 +7,8 @@ again), so that ratios between cases come from one run.  Reported per case:
 milliseconds per frame (median over the repeats), the real-time factor
 (frame period / wall time per frame), the shares of the frame spent on LOD
 bookkeeping, forces and assembly, linear solves and self-collision, solves
-and integrator steps per frame, mean triangles; and for a case measured
+and integrator steps per frame, mean triangles (these of the repeat with the
+median time); and for a case measured
 against another (``vs``), the ratio of their times - how much enabling
 self-collision costs a scene without self-contact, measured on the same
 frames in the same run (and the optional ``cholmod`` backend's cases,
@@ -117,9 +118,13 @@ def run_scenes(out: Path, repeats: int = 3, quick: bool = False, cpu: int | None
 
 
 def _row(case: SceneCase, costs: list[dict]) -> dict:
-    """One table row from the repeats' cost counters (the worker's ``cost``)."""
-    ms = float(np.median([1e3 * c["wall_s"] / c["steps"] for c in costs]))
-    c = costs[0]
+    """One table row from the repeats' cost counters (the worker's ``cost``):
+    the median time per frame, and the shares and counts of the repeat with
+    that time (of two middle ones, the faster), so that a row's shares come
+    from one run and a single slow or fast run moves neither."""
+    times = [1e3 * c["wall_s"] / c["steps"] for c in costs]
+    ms = float(np.median(times))
+    c = costs[int(np.argsort(times, kind="stable")[(len(times) - 1) // 2])]
     frame = c["simulated_s"] / c["steps"]
     internal = max(c["internal_step_ms"], 1e-12)
     return dict(
@@ -140,8 +145,9 @@ def _row(case: SceneCase, costs: list[dict]) -> dict:
 def markdown(result: dict) -> str:
     lines = [f"Built-in scenes, {result['repeats']} repeats each, one pinned thread "
              f"({result['machine']['platform']}); ms per frame is the median wall time, the "
-             "real-time factor the frame period over it; shares are of the simulator's own "
-             "step time; \"× vs\" is the ratio to the case named (same run).", "",
+             "real-time factor the frame period over it; shares (of the simulator's own step "
+             "time) and counts are the median-time repeat's; \"× vs\" is the ratio to the "
+             "case named (same run).", "",
              "| case | LOD | ms / frame | real-time factor | × vs | LOD | forces + assembly "
              "| solves | self-collision | solves / frame | steps / frame | triangles |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
