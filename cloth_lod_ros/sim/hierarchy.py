@@ -214,7 +214,8 @@ class Hierarchy48:
         return self._py_free_triangles
 
     def __getstate__(self) -> dict:
-        """Copies and pickles carry the Python form (typed dicts do not copy)."""
+        """Copies and pickles carry the Python form of the index, the reference's
+        (the kernels' tables are rebuilt from it when next needed)."""
         self._python_index()
         state = dict(self.__dict__)
         state["_compiled"] = None
