@@ -432,18 +432,9 @@ class ClothSim(HeldInputs, ObstacleInputs):
             h, time = self.hierarchy, self.state.time
             merging = simplify and round_index == 0
             if stale:
-                refine = self.lod_policy.recheck_on_pools(h, time, recheck, detail_points,
-                                                          lookahead)
-                if refine is not None:
-                    if not len(refine):
-                        break
+                splits = self._round_on_pools(recheck, detail_points, lookahead)
+                if splits is not None:
                     recheck = []
-                    before = h.active_vertices() if self.obstacles else None
-                    done = h.carry_out(refine, _NO_EDGES, time, log=self._step_operations)
-                    splits, _ = done if done is not None else LodPolicy.apply(
-                        h, LodDecision(refine.tolist(), []), time, log=self._step_operations)
-                    if self.obstacles and splits:
-                        self._lift_new_particles(before)
                     total_splits += splits
                     if not splits:
                         break
@@ -499,6 +490,24 @@ class ClothSim(HeldInputs, ObstacleInputs):
         if stale:
             self._adopt_hierarchy()
         return total_splits, total_merges
+
+    def _round_on_pools(self, merged, detail_points: np.ndarray,
+                        lookahead: float) -> int | None:
+        """A refinement round after a check's first, on the hierarchy's pools
+        (the mesh not adopted since): ``merged`` the check's merge edges; the
+        splits it made, or None when the kernels cannot find its refinements
+        (then adopt and decide)."""
+        h, time = self.hierarchy, self.state.time
+        refine = self.lod_policy.recheck_on_pools(h, time, merged, detail_points, lookahead)
+        if refine is None or not len(refine):
+            return None if refine is None else 0
+        before = h.active_vertices() if self.obstacles else None
+        done = h.carry_out(refine, _NO_EDGES, time, log=self._step_operations)
+        splits = (done if done is not None else LodPolicy.apply(
+            h, LodDecision(refine.tolist(), []), time, log=self._step_operations))[0]
+        if self.obstacles and splits:
+            self._lift_new_particles(before)
+        return splits
 
     def _lift_new_particles(self, known: np.ndarray | None = None) -> None:
         """Put particles just made by splits that lie inside an obstacle's offset
