@@ -134,15 +134,8 @@ def warm_up() -> None:
         return
     from types import SimpleNamespace
 
-    from .hierarchy import Hierarchy48
-    from .mesh48 import base_mesh
-    from .topology_kernels import precompute
-    base = base_mesh(1.0, 1.0, 2, 2)
-    h = Hierarchy48(base, np.column_stack([base.uv, np.zeros(len(base.uv))]), 0.1, 3)
-    for t in range(base.triangle_count):
-        h.refine(t, 0.0)
-    mesh, vertex_ids, triangle_ids = h.active_mesh()
-    elements = precompute(mesh)
+    from .lod_kernels import warm_up_hierarchy
+    h, vertex_ids, triangle_ids, elements = warm_up_hierarchy()
     config = SimpleNamespace(refine_threshold=0.0, coarsen_threshold=1.0, max_hinge_rate=1.0,
                              max_bend_force=1.0, min_lifetime=-1.0, max_merge_speed=1.0)
     material = SimpleNamespace(bend_stiffness=1e-5, stretch_stiffness=1.0,

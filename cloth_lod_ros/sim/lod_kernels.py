@@ -552,13 +552,10 @@ def merge_energies(hierarchy, elements, vertex_ids, triangle_ids, vertices, x, v
     return delta, kinetic, area
 
 
-def warm_up() -> None:
-    """Compile or load these kernels (the signatures a simulation calls) on a
-    small refined hierarchy, so no timed step pays for it.  Nothing without numba."""
-    if not _kernels.enabled():
-        return
-    from types import SimpleNamespace
-
+def warm_up_hierarchy():
+    """What the LOD kernels' warm-ups run on: a 2 x 2-block hierarchy with
+    every base triangle refined once, ``(hierarchy, vertex_ids, triangle_ids,
+    elements)`` of its compact mesh."""
     from .hierarchy import Hierarchy48
     from .mesh48 import base_mesh
     from .topology_kernels import precompute
@@ -567,7 +564,17 @@ def warm_up() -> None:
     for t in range(base.triangle_count):
         h.refine(t, 0.0)
     mesh, vertex_ids, triangle_ids = h.active_mesh()
-    elements = precompute(mesh)
+    return h, vertex_ids, triangle_ids, precompute(mesh)
+
+
+def warm_up() -> None:
+    """Compile or load these kernels (the signatures a simulation calls) on a
+    small refined hierarchy, so no timed step pays for it.  Nothing without numba."""
+    if not _kernels.enabled():
+        return
+    from types import SimpleNamespace
+
+    h, vertex_ids, triangle_ids, elements = warm_up_hierarchy()
     x, v = h.x[vertex_ids], h.v[vertex_ids]
     theta, grad = _kernels.hinge_angles(x, elements.hinge_vertices, with_gradient=True)
     criterion(elements, 1e-5, x, v, SimpleNamespace(hinge_angle=theta, hinge_gradient=grad),
