@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 from cloth_lod_ros.sim import ClothSim
 from cloth_lod_ros.sim.config import scene_from_dict
 from cloth_lod_ros.sim.hierarchy import Merge
+from cloth_lod_ros.sim.mesh48 import MeshError
 
 
 def held_scene():
@@ -103,7 +104,13 @@ def test_held_patches_equal_their_definition_through_changes(actions):
                 sim.apply_mesh_operations(ops)
                 done.append(ops)
         elif kind == "undo" and done:
-            sim.apply_mesh_operations([op.inverse() for op in reversed(done.pop())])
+            # The steps since may have refined the children further: then the
+            # undo is refused whole and the mesh stays as it was.
+            active = h.active_triangles()
+            try:
+                sim.apply_mesh_operations([op.inverse() for op in reversed(done.pop())])
+            except MeshError:
+                np.testing.assert_array_equal(h.active_triangles(), active)
         elif kind == "roll_back":
             # A refused step undoes its LOD operations (ClothSim._roll_back).
             before = sim.state.copy()

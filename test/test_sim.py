@@ -269,3 +269,23 @@ def test_no_backend_lets_another_exception_out_of_a_step(method):
                                            atol=1e-9 * np.abs(surface).max())
                 return
     assert np.all(np.isfinite(sim.positions))
+
+
+def test_scripted_mesh_operations_are_refused_whole():
+    """An invalid operation in a list undoes the ones before it: the mesh, the
+    compact arrays and the state are as before the call."""
+    from cloth_lod_ros.sim.hierarchy import Merge
+    from cloth_lod_ros.sim.mesh48 import MeshError
+    sim = ClothSim.from_scene("hang_two_corners", ["cloth.level=4"])
+    h = sim.hierarchy
+    made = sim.refine(int(h.active_triangles()[0]))
+    assert made
+    active, x = h.active_triangles().copy(), sim.positions.copy()
+    undo = [op.inverse() for op in reversed(made)]
+    with pytest.raises(MeshError):
+        sim.apply_mesh_operations(undo + [Merge((0, h.vertex_end - 1))])   # never split
+    np.testing.assert_array_equal(h.active_triangles(), active)
+    np.testing.assert_array_equal(sim.positions, x)
+    assert sim.mesh.triangle_count == len(active)
+    h.check()
+    sim.step()

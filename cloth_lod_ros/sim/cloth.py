@@ -44,7 +44,7 @@ from .integrator import ImplicitStageSolver
 from .kinematics import ObstacleInputs
 from .lod import LodDecision, LodPolicy
 from .oplog import OperationLog
-from .mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
+from .mesh48 import MeshError, RestMesh, base_mesh, lumped_masses, refine_uniform
 from .metrics import PointLocator
 from .self_contact import SelfCollision
 from .state import ClothState, SimulationError, StepStats
@@ -87,7 +87,7 @@ def live_update(scene: SceneConfig, changes: dict) -> SceneConfig:
     return scene_from_dict(data)
 
 
-# Read-only empties for adapt's rounds that need no held nodes or grasp points.
+# Empties for adapt's rounds that need no held nodes, grasp points, merges.
 _NO_NODES = np.zeros(0, dtype=np.int64)
 _NO_POINTS = np.zeros((0, 2))
 _NO_NODES.setflags(write=False)
@@ -113,10 +113,8 @@ class ClothSim(HeldInputs, ObstacleInputs):
     refused whole: its mesh operations are undone and the state is kept.
     """
 
-    #: A LOD check's rounds after the first find their refinements on the
-    #: hierarchy's pools and adopt the mesh once (:meth:`adapt`); False: the
-    #: compact path, adopting after every round (the reference the tests
-    #: compare with; the same operations).
+    #: A check's later rounds on the hierarchy's pools, adopting the mesh once
+    #: (:meth:`adapt`); False: adopt after every round (the same operations).
     pool_rounds = True
 
     def __init__(self, scene: SceneConfig, keep_stats: int | None = None):
@@ -188,8 +186,8 @@ class ClothSim(HeldInputs, ObstacleInputs):
         h = self.hierarchy
         adopted = adopt_compiled(h)         # all of it in one compiled call, or None
         if adopted is not None:
-            self.mesh, self.vertex_ids, self.triangle_ids, self.elements, self.masses, x, v = \
-                adopted
+            (self.mesh, self.vertex_ids, self.triangle_ids, self.elements, self.masses, x,
+             v) = adopted
         else:
             self.mesh, self.vertex_ids, self.triangle_ids = h.active_mesh()
             self.elements = precompute(self.mesh)
@@ -197,8 +195,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
             self.masses = h.mass_units[self.vertex_ids] * h.unit_mass
             x, v = h.x[self.vertex_ids], h.v[self.vertex_ids]
         self.state = ClothState(x, v, self.state.time)
-        # The sparsity pattern is built by the first solve on this topology:
-        # a LOD pass that refines in rounds adopts several meshes in a row.
+        # The sparsity pattern: at the first solve on this topology.
         levels = self.mesh.levels
         self.solver.reset_topology(uv=self.mesh.uv,
                                    graded=bool(len(levels) and levels.min() != levels.max()))
@@ -389,11 +386,25 @@ class ClothSim(HeldInputs, ObstacleInputs):
 
         For scripting and tests; the state is carried over as the operations
         define (face rule on split, momentum-conserving merge).
+
+        Raises:
+            MeshError: an operation is not valid on the mesh as it is (a merge
+                whose children the steps since refined further); the ones
+                before it are undone: the mesh is as it was.
         """
         h = self._sync_hierarchy()
-        for op in ops:
-            h.apply(op, self.state.time)
-        self._adopt_hierarchy()
+        done = []
+        try:
+            for op in ops:
+                h.apply(op, self.state.time)
+                done.append(op)
+        except MeshError:
+            for op in reversed(done):
+                h.apply(op.inverse(), self.state.time)
+            raise
+        finally:
+            if done:
+                self._adopt_hierarchy()
 
     def refine(self, triangle: int) -> list:
         """Refine the active triangle with pool id ``triangle`` (forcing splits of
@@ -420,10 +431,9 @@ class ClothSim(HeldInputs, ObstacleInputs):
         sc, own = self.self_collision, self.scene.self_collision
         total_splits = total_merges = 0
         recheck = None      # after a round: its merged edges (the next one re-checks)
-        # Rounds after the first find their refinements on the hierarchy's
-        # pools, and the mesh is adopted once, after the last (round_kernels);
-        # with self-collision each round's new particles are moved out of the
-        # other layers, on the adopted mesh.
+        # Rounds after the first run on the pools, adopting once, after the last
+        # (round_kernels); with self-collision each round adopts (new particles
+        # are moved out of the other layers on the adopted mesh).
         on_pools = sc is None and self.pool_rounds
         stale = False       # the hierarchy changed since the mesh was adopted
         detail_points = (np.array([g.uv for g in self.grasps if g.closed]).reshape(-1, 2)
@@ -493,10 +503,9 @@ class ClothSim(HeldInputs, ObstacleInputs):
 
     def _round_on_pools(self, merged, detail_points: np.ndarray,
                         lookahead: float) -> int | None:
-        """A refinement round after a check's first, on the hierarchy's pools
-        (the mesh not adopted since): ``merged`` the check's merge edges; the
-        splits it made, or None when the kernels cannot find its refinements
-        (then adopt and decide)."""
+        """A refinement round after a check's first, on the hierarchy's pools (not
+        adopted since): ``merged`` the check's merge edges; the splits it made,
+        or None when the kernels cannot (then adopt and decide)."""
         h, time = self.hierarchy, self.state.time
         refine = self.lod_policy.recheck_on_pools(h, time, merged, detail_points, lookahead)
         if refine is None or not len(refine):
