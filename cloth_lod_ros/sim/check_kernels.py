@@ -9,9 +9,10 @@ obstacles).  A scene with none of them (a hanging or draped cloth without
 contact) needs nothing in between: :func:`plain_decision` makes the same
 calls inside one kernel, which saves the wrappers' conversions and three
 dispatches per check, run with the caches cold after a time step.  The
-numbers are the same kernels' (the gravity term and the bound stay in
-Python, as BLAS orders the former), so the decision is the staged one's bit
-for bit (tested: test/test_lod_kernels.py).
+numbers are the same kernels' and the last test's the same operations
+(:func:`_kept`; only the gravity term's product stays in numpy, as BLAS
+orders it), so the decision is the staged one's bit for bit (tested:
+test/test_check_kernels.py).
 """
 
 from __future__ import annotations
@@ -33,6 +34,11 @@ def _plain(hv, weight, ht, triangle_ids, x, v, kb, lookahead, threshold, level, 
            detail, simplify, vertex_active, vertex_end, vertex_parents, children, tri_active,
            coarsen, max_rate, max_force, vertex_ids, birth, cutoff, held, vertex_edge, pool_tri,
            uv, tri, coef_u, coef_v, area, masses, ks, ksh):
+    """lod_kernels' _criterion, _refine_order, _merge_candidates and
+    _merge_energies in turn (their arguments, as decide passes them):
+    ``(ok, refine, candidates passing (a)-(d), their energies without the
+    gravity term, kinetic parts, diamond areas, compact midpoints, chord
+    offsets)``; ok False where one of them declines."""
     count = hv.shape[0]
     theta, deviation, refine_deviation = np.empty(count), np.empty(count), np.empty(count)
     rate, force, height = np.empty(count), np.empty(count), np.empty(count)

@@ -224,18 +224,10 @@ def precompute(mesh: _mesh48.RestMesh) -> _forces.Elements:
         return _forces.precompute(mesh)
     if "hinges" not in mesh._cache:
         # A new mesh (every topology change): hinges and element data in one call.
-        hinges, ok, area, coef_u, coef_v, hv, weight = _mesh_elements(
-            _kernels._as_float(uv), _kernels._as_index(tri), mesh.vertex_count)
-        status, edge, opposite, tris, hyp, border, ends, half_edge, corner = hinges
-        if status == 0 and ok:
-            mesh._cache["hinges"] = _mesh48.Hinges(edge=edge, opposite=opposite,
-                                                   triangles=tris, is_hypotenuse=hyp,
-                                                   boundary_edges=border,
-                                                   edges=(ends, half_edge, corner))
-            return _forces.Elements(
-                triangles=tri.copy(), area=area, coef_u=coef_u, coef_v=coef_v,
-                hinge_vertices=hv, hinge_weight=weight, hinge_triangles=tris,
-                vertex_count=mesh.vertex_count, edges=(ends, half_edge, corner))
+        built = _mesh_elements(_kernels._as_float(uv), _kernels._as_index(tri),
+                               mesh.vertex_count)
+        if built[0][0] == 0 and built[1]:
+            return _adopted_elements(mesh, built)
     hinges = mesh.hinges()          # the errors of build_hinges, or its cached arrays
     ok, area, coef_u, coef_v, hv, weight = _element_data(
         np.ascontiguousarray(uv), np.ascontiguousarray(tri),
@@ -291,18 +283,23 @@ def adopt(hierarchy):
         float(h.unit_mass), np.ascontiguousarray(h.x), np.ascontiguousarray(h.v))
     if not ok:
         return None
-    (_, edge, opposite, tris, hyp, border, ends, half_edge, corner), _, area, coef_u, coef_v, \
-        hv, weight = built
     mesh = _mesh48.RestMesh(uv=uv, triangles=tri, levels=levels, width=h.width,
                             height=h.height)
+    return mesh, vertex_ids, triangle_ids, _adopted_elements(mesh, built), masses, x, v
+
+
+def _adopted_elements(mesh: _mesh48.RestMesh, built) -> _forces.Elements:
+    """A new mesh's Elements from :func:`_mesh_elements`' successful result,
+    its hinges cached on the mesh (as ``mesh.hinges()`` would build them)."""
+    (_, edge, opposite, tris, hyp, border, ends, half_edge, corner), _, area, coef_u, coef_v, \
+        hv, weight = built
     edges = (ends, half_edge, corner)
     mesh._cache["hinges"] = _mesh48.Hinges(edge=edge, opposite=opposite, triangles=tris,
                                            is_hypotenuse=hyp, boundary_edges=border,
                                            edges=edges)
-    elements = _forces.Elements(triangles=tri.copy(), area=area, coef_u=coef_u, coef_v=coef_v,
-                                hinge_vertices=hv, hinge_weight=weight, hinge_triangles=tris,
-                                vertex_count=len(vertex_ids), edges=edges)
-    return mesh, vertex_ids, triangle_ids, elements, masses, x, v
+    return _forces.Elements(triangles=mesh.triangles.copy(), area=area, coef_u=coef_u,
+                            coef_v=coef_v, hinge_vertices=hv, hinge_weight=weight,
+                            hinge_triangles=tris, vertex_count=mesh.vertex_count, edges=edges)
 
 
 def warm_up() -> None:
