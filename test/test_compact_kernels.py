@@ -4,7 +4,12 @@
 :meth:`~cloth_lod_ros.sim.hierarchy.Hierarchy48.active_mesh`'s numpy passes and
 :func:`cloth_lod_ros.sim.held.patch_refresh` at every topology change; both must
 give the same arrays (values, dtypes, shapes) as the reference, over random
-sequences of refinements and merges and over random patches.
+sequences of refinements and merges and over random patches.  Bitwise on
+every CPU: the results are ids, flags and copies of pool values, and the one
+float test (a particle within the patch radius) is ``sqrt(du² + dv²)`` in the
+reference's order, basic operations that are correctly rounded everywhere
+(test/tolerances.py), so the same particles are inside on both paths, even
+exactly at the radius.
 """
 
 from __future__ import annotations

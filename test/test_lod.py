@@ -11,6 +11,7 @@ from cloth_lod_ros.sim.hierarchy import Merge, Split
 from cloth_lod_ros.sim.lod import curvature_estimate, hinge_measures
 from cloth_lod_ros.sim.metrics import rms_and_max_distance
 from cloth_lod_ros.sim import ClothSim
+from tolerances import assert_close_ulps, sum_floor
 
 G = np.array([0.0, 0.0, -9.81])
 
@@ -254,7 +255,10 @@ def test_split_then_merge_leaves_the_simulation_state_unchanged():
 
 
 def test_criterion_reuses_the_force_evaluation_exactly():
-    """The step hands its own force evaluation to the criterion: same numbers."""
+    """The step hands its own force evaluation to the criterion: same numbers.
+    The evaluation here is the numpy reference's and the fresh measures may be
+    the compiled kernels' (numpy's arctan2 against the C library's), so they
+    agree to the tolerances of test/tolerances.py, not bit for bit."""
     from cloth_lod_ros.sim.forces import evaluate
     sim = ClothSim(load_scene("hang_two_corners", ["cloth.level=4"]))
     for _ in range(20):
@@ -263,9 +267,12 @@ def test_criterion_reuses_the_force_evaluation_exactly():
     ev = evaluate(sim.elements, sim.scene.material, x, v, 1.0, 1.0)
     fresh = hinge_measures(sim.elements, 1e-3, x, v)
     reused = hinge_measures(sim.elements, 1e-3, x, v, ev)
-    for a, b in zip((fresh.deviation, fresh.rate, fresh.bend_force),
-                    (reused.deviation, reused.rate, reused.bend_force)):
-        np.testing.assert_array_equal(a, b)
+    hv = sim.elements.hinge_vertices
+    rate_terms = (np.abs(ev.hinge_gradient) * np.abs(v[hv])).sum(axis=(1, 2))
+    assert_close_ulps(reused.deviation, fresh.deviation, err_msg="deviation")
+    assert_close_ulps(reused.bend_force, fresh.bend_force, err_msg="bend_force")
+    assert_close_ulps(reused.rate, fresh.rate, abs_floor=sum_floor(rate_terms, 12),
+                      err_msg="rate")
     assert fresh.deviation.max() > 0
     # The solver's cache is keyed on the state, not on the object holding it.
     def evaluation():

@@ -1,6 +1,11 @@
-"""The compiled LOD criterion (cloth_lod_ros.sim.lod_kernels) equals the numpy
-reference bitwise: the hinge measures, the merge energies and the decisions
-they make (the thresholds must choose the same operations either way)."""
+"""The compiled LOD criterion (cloth_lod_ros.sim.lod_kernels) against the numpy
+reference: the hinge measures and the merge energies to the tolerances of
+test/tolerances.py (the angles come from numpy's arctan2/tan on one side and
+the C library's on the other, which may differ by a few ULP on some CPUs), and
+the decisions they make the same except for values within those tolerances of
+a threshold.  Integer results (candidates, refine order from given
+deviations, the tests (a)-(d) on given measures) are compared bitwise: the same
+comparisons of the same floats."""
 
 import copy
 from types import SimpleNamespace
@@ -15,6 +20,7 @@ from cloth_lod_ros.sim.config import scene_from_dict
 from cloth_lod_ros.sim.hierarchy import Merge
 from cloth_lod_ros.sim.lod import LodPolicy
 from cloth_lod_ros.sim.merge_energy import merge_energy_change
+from tolerances import assert_close_ulps, assert_lod_decisions_agree, energy_floor, sum_floor
 
 pytestmark = [pytest.mark.skipif(not kernels.available, reason="numba not installed"),
               # degenerate inputs on purpose: the reference warns of its 0/0
@@ -24,9 +30,22 @@ pytestmark = [pytest.mark.skipif(not kernels.available, reason="numba not instal
 
 
 def _same(a, b):
+    """Bitwise: for integer and boolean results, and for floats that are the
+    same operations on the same operands (see test/tolerances.py)."""
     a, b = np.asarray(a), np.asarray(b)
     assert a.dtype == b.dtype and a.shape == b.shape
     assert a.tobytes() == b.tobytes()
+
+
+def _measures_close(ours, reference, rate_terms, lookahead=0.0):
+    """Hinge measures of the kernels against the reference's: angle, deviation,
+    bend force and height to a few ULP (they pass through arctan2 and tan), the
+    rate to the rounding bound of its 12-term sum (whose terms' magnitudes
+    ``rate_terms`` ``(h,)`` rad/s are given)."""
+    for name in ("deviation", "bend_force", "angle", "height"):
+        assert_close_ulps(getattr(ours, name), getattr(reference, name), err_msg=name)
+    assert_close_ulps(ours.rate, reference.rate, abs_floor=sum_floor(rate_terms, 12),
+                      err_msg="rate")
 
 
 def _both(function, *args, **kwargs):
@@ -44,15 +63,21 @@ def _wide(rng, shape):
 
 
 def test_einsum_order_is_the_one_the_kernels_reproduce():
-    """The kernels' sums are np.einsum's (two lanes, see the module docstring):
-    checked on this numpy build, whose order the reference inherits."""
+    """The kernels sum in np.einsum's order on x86_64 numpy builds (two lanes,
+    see the module docstring); another build may order or fuse (FMA) the
+    products differently, which moves a sum by at most γ_n Σ|products|
+    (test/tolerances.py): that bound is what holds everywhere, and what the
+    comparisons with the reference allow."""
     rng = np.random.default_rng(0)
     a, b = _wide(rng, (4000, 3)), _wide(rng, (4000, 3))
     p = a * b
-    _same(np.einsum("kd,kd->k", a, b), ((0.0 + p[:, 0]) + p[:, 2]) + ((0.0 + p[:, 1]) + 0.0))
+    assert_close_ulps(np.einsum("kd,kd->k", a, b),
+                      ((0.0 + p[:, 0]) + p[:, 2]) + ((0.0 + p[:, 1]) + 0.0),
+                      ulps=0, abs_floor=sum_floor(np.abs(p).sum(axis=1), 3))
     a2, b2 = _wide(rng, (4000, 2)), _wide(rng, (4000, 2))
     p2 = a2 * b2
-    _same(np.einsum("hd,hd->h", a2, b2), (p2[:, 0] + 0.0) + (p2[:, 1] + 0.0))
+    assert_close_ulps(np.einsum("hd,hd->h", a2, b2), (p2[:, 0] + 0.0) + (p2[:, 1] + 0.0),
+                      ulps=0, abs_floor=sum_floor(np.abs(p2).sum(axis=1), 2))
 
 
 def _criterion_inputs(rng, count, degenerate):
@@ -74,13 +99,19 @@ def _criterion_inputs(rng, count, degenerate):
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), count=st.integers(0, 300),
        lookahead=st.sampled_from([0.0, 1e-3, 0.05, 10.0]), degenerate=st.booleans())
-def test_hinge_criterion_is_bitwise_the_reference(seed, count, lookahead, degenerate):
+def test_hinge_criterion_matches_the_reference(seed, count, lookahead, degenerate):
+    """Given angles and gradients (an evaluation's): the same inputs to both, so
+    only tan (the deviation) differs by implementation."""
     rng = np.random.default_rng(seed)
     elements, evaluation, v = _criterion_inputs(rng, count, degenerate)
     (m0, d0), (m1, d1) = _both(lod._criterion, elements, 3e-5, None, v, evaluation, lookahead)
-    for name in ("deviation", "rate", "bend_force", "angle", "height"):
-        _same(getattr(m0, name), getattr(m1, name))
-    _same(d0, d1)
+    hv = elements.hinge_vertices
+    rate_terms = (np.abs(evaluation.hinge_gradient) * np.abs(v[hv])).sum(axis=(1, 2))
+    _measures_close(m1, m0, rate_terms)
+    # The look-ahead deviation: θ + τ θ̇ carries θ̇'s tolerance by at most L/4 per rad.
+    rate_floor = sum_floor(rate_terms, 12)
+    assert_close_ulps(d1, d0, abs_floor=0.25 * np.nan_to_num(m0.height, posinf=0.0)
+                      * lookahead * np.nan_to_num(rate_floor))
 
 
 @settings(max_examples=40, deadline=None)
@@ -170,7 +201,7 @@ def _merge_energy(sim, vertices, hinge_angle=None, gravity=None):
        speed=st.sampled_from([0.0, 0.3]), pick=st.integers(0, 2**32 - 1),
        gravity=st.sampled_from([(0.0, 0.0, -9.81), (0.3, -9.7, 1.3), (0.0, 0.0, 0.0)]),
        given_angles=st.booleans())
-def test_merge_energies_are_bitwise_the_reference(seed, offset, speed, pick, gravity,
+def test_merge_energies_match_the_reference(seed, offset, speed, pick, gravity,
                                                   given_angles):
     """Every candidate or a random subset (interior and border diamonds), with
     the angles given or computed, under any gravity."""
@@ -184,18 +215,32 @@ def test_merge_energies_are_bitwise_the_reference(seed, offset, speed, pick, gra
     angles = kernels.hinge_angles(sim.positions, sim.elements.hinge_vertices) \
         if given_angles else None
     e0, e1 = _both(_merge_energy, sim, vertices, angles, gravity)
-    for name in ("total", "kinetic", "area"):
-        _same(getattr(e0, name), getattr(e1, name))
+    _energies_close(e1, e0, sim)
+
+
+def _energies_close(ours, reference, sim):
+    """Merge energies to tolerances.energy_floor (a fraction of the larger of
+    |ΔE| and the bound ½ ρ A v²); the diamonds' areas to a few ULP."""
+    bound = (0.5 * sim.scene.material.density * reference.area
+             * sim.scene.lod.max_merge_speed ** 2)
+    for name in ("total", "kinetic"):
+        assert_close_ulps(getattr(ours, name), getattr(reference, name),
+                          abs_floor=energy_floor(getattr(reference, name), bound),
+                          err_msg=name)
+    assert_close_ulps(ours.area, reference.area, err_msg="area")
 
 
 @pytest.mark.parametrize("offset", [0.0, 0.01, 0.3])
-def test_hinge_measures_of_a_mesh_are_bitwise_the_reference(offset):
+def test_hinge_measures_of_a_mesh_match_the_reference(offset):
     """Without an evaluation (the angles computed in the kernel), flat to crumpled."""
     sim = _perturbed(2, offset, 0.3)
     m0, m1 = _both(lod.hinge_measures, sim.elements, sim.scene.material.bend_stiffness,
                    sim.positions, sim.velocities)
-    for name in ("deviation", "rate", "bend_force", "angle", "height"):
-        _same(getattr(m0, name), getattr(m1, name))
+    _, grad = kernels.hinge_angles(sim.positions, sim.elements.hinge_vertices,
+                                   with_gradient=True)
+    rate_terms = (np.abs(grad) * np.abs(sim.velocities[sim.elements.hinge_vertices])).sum(
+        axis=(1, 2))
+    _measures_close(m1, m0, rate_terms)
 
 
 def test_merge_energies_of_no_candidates_and_a_collapsed_cloth():
@@ -208,8 +253,7 @@ def test_merge_energies_of_no_candidates_and_a_collapsed_cloth():
         "scene")}, positions=np.zeros_like(sim.positions))
     vertices, _ = sim.hierarchy.split_vertices()
     e0, e1 = _both(_merge_energy, collapsed, vertices)
-    for name in ("total", "kinetic", "area"):
-        _same(getattr(e0, name), getattr(e1, name))
+    _energies_close(e1, e0, sim)
 
 
 def test_a_candidate_outside_the_compact_mesh_goes_to_the_reference():
@@ -238,10 +282,8 @@ def test_decisions_are_the_reference_decisions(seed, held_count):
     args = (sim.hierarchy, sim.elements, sim.vertex_ids, sim.triangle_ids, sim.positions,
             sim.velocities, sim.masses, 10.0, held)
     d0, d1 = _both(policy.decide, *args, lookahead=0.05)
-    assert d0.refine == d1.refine and d0.merge == d1.merge
+    assert_lod_decisions_agree(d1, d0, policy, *args[:7], lookahead=0.05)
     assert d0.merge and d0.refine                  # both lists exercised
-    for name in ("merge_energy", "merge_kinetic", "merge_bound"):
-        _same(getattr(d0, name), getattr(d1, name))
     assert not set(held.tolist()) & {int(sim.hierarchy.midpoint[e]) for e in d1.merge}
 
 

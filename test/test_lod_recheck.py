@@ -6,7 +6,11 @@ the criterion only on the hinges the previous round changed
 (:func:`~cloth_lod_ros.sim.lod.changed_hinges`).  Every such decision must
 equal the one the whole criterion gives on the same inputs, in running scenes
 (refinement in rounds, merges before them, contacts, grasps, self-collision)
-with the compiled kernels and with the numpy reference.
+with the compiled kernels and with the numpy reference.  Exact equality by
+construction: each comparison is of one implementation with itself (the
+kernel setting is the same for both calls), evaluated per hinge on the same
+positions, so a hinge's measures are the same numbers whichever other
+hinges are evaluated with it.
 """
 
 from __future__ import annotations

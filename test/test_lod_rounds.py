@@ -8,7 +8,11 @@ the last; the compact path adopts after every round and re-checks with
 :meth:`~cloth_lod_ros.sim.lod.LodPolicy.decide`.  Every pool re-check must
 return decide's refinements on the same hierarchy, and whole runs must be
 the same bit for bit: contacts (particles lifted out of obstacles between
-rounds), grasps (detail around them), merges before the rounds.
+rounds), grasps (detail around them), merges before the rounds.  Bitwise by
+construction: both paths run in one process with the same kernel setting,
+the pool re-check calls the same compiled criterion and refine order as
+decide (round_kernels uses lod_kernels' _criterion and _refine_order) on
+copies of the same positions, and the rest of a step is the same code.
 """
 
 from __future__ import annotations

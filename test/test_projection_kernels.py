@@ -1,5 +1,7 @@
 """The compiled projection kernels against the numpy reference: bitwise where
-no partly held particle is involved, to round-off where one is."""
+no partly held particle is involved (those blocks are copies of the matrix's
+or zeros, on both paths), to round-off where one is (products with the
+projectors, summed in another order)."""
 
 import numpy as np
 import pytest

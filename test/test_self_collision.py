@@ -63,9 +63,17 @@ def test_box_pairs_are_exactly_the_overlapping_boxes():
 
 
 def _layered_by_cells(lo, hi, uv_lo, uv_hi, pad, normals):
-    """The test of :func:`layered_boxes` as its docstring states it, cell by cell."""
+    """The test of :func:`layered_boxes` as its docstring states it, cell by
+    cell: the flags ``(k,)``, and the smallest relative margin of the
+    decisions behind them (a box corner to a cell boundary, a material spread
+    to S, a cosine to 0), which this code reaches by other sums than the
+    library's (a mean and a matrix product), so flags decided within round-off
+    of a threshold may differ."""
     cell = 1.5 * max(float(np.median((hi - lo).max(axis=1))), 1e-9)
     origin = lo.min(axis=0)
+    corners = np.concatenate([lo - origin, hi - origin]) / cell
+    off_boundary = np.abs(corners - np.round(corners))[corners != 0.0]   # 0: exact both ways
+    margins = [off_boundary.min(initial=1.0)]
     first = np.floor((lo - origin) / cell).astype(int)
     last = np.floor((hi - origin) / cell).astype(int)
     members = {}
@@ -79,9 +87,12 @@ def _layered_by_cells(lo, hi, uv_lo, uv_hi, pad, normals):
     for ids in members.values():
         spread = max(uv_lo[ids, d].max() - uv_hi[ids, d].min() for d in (0, 1))
         mean = normals[ids].mean(axis=0)
-        if spread > far or (normals[ids] @ mean).min() < 0.0:
+        cosines = normals[ids] @ mean
+        margins += [abs(spread - far) / far,
+                    np.abs(cosines).min() / max(np.linalg.norm(mean), 1e-300)]
+        if spread > far or cosines.min() < 0.0:
             out[ids] = True
-    return out
+    return out, min(margins)
 
 
 @pytest.mark.parametrize("compiled", [False, True], ids=["numpy", "compiled"])
@@ -127,8 +138,11 @@ def _check_layered_boxes():
         normals /= np.linalg.norm(normals, axis=1)[:, None]
         args = (lo, hi, uv_corners.min(axis=1), uv_corners.max(axis=1), 0.02, normals)
         out = layered_boxes(*args)
-        assert np.array_equal(out, _layered_by_cells(*args))
-        flagged.append(out.any())
+        expected, margin = _layered_by_cells(*args)
+        if margin > 1e-9:          # every decision clear of round-off: the same flags
+            assert np.array_equal(out, expected)
+            flagged.append(out.any())
+    assert len(flagged) >= 14      # at most 2 of 16 trials too close to a threshold
     assert any(flagged) and not all(flagged)
 
 

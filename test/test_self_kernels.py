@@ -2,7 +2,13 @@
 reference: the same boxes, normals, layered flags, candidate pairs and - with
 the conservative ``may_touch`` skipping narrow phases - the same contact and
 crossing pairs, bit for bit, on cloth with and without layers, with
-degenerate triangles, on sparse grids and with non-finite positions."""
+degenerate triangles, on sparse grids and with non-finite positions.
+Bitwise by construction on every CPU: boxes are minima, maxima and one
+addition; normals and the layered test's sums are basic operations in the
+reference's order (np.bincount and ufunc.at add in index order, as the
+kernels' loops do), which are correctly rounded everywhere
+(test/tolerances.py); pairs and flags are comparisons of those same
+numbers, and the narrow phase is the same numpy code on the same pairs."""
 
 from __future__ import annotations
 

@@ -1,4 +1,9 @@
-"""The compiled topology kernels equal the numpy reference bitwise."""
+"""The compiled topology kernels equal the numpy reference: bitwise for the
+topology (hinges, patterns) and for the rest data made of basic operations
+in the reference's order (areas, deformation coefficients); the hinge
+weights to a few ULP, as the reference's squared edge lengths are an
+``np.einsum`` whose summation (order, fused multiply-adds) depends on the
+numpy build (test/tolerances.py)."""
 
 import numpy as np
 import pytest
@@ -8,6 +13,7 @@ from cloth_lod_ros.sim import topology_kernels as tk
 from cloth_lod_ros.sim import forces, mesh48
 from cloth_lod_ros.sim.config import load_scene
 from cloth_lod_ros.sim.mesh48 import MeshError, RestMesh, base_mesh, refine_uniform
+from tolerances import assert_close_ulps
 
 pytestmark = [pytest.mark.skipif(not kernels.available, reason="numba not installed"),
               pytest.mark.usefixtures("kernels_restored")]
@@ -23,6 +29,14 @@ def _same(a, b):
     a, b = np.asarray(a), np.asarray(b)
     assert a.dtype == b.dtype and a.shape == b.shape
     assert a.tobytes() == b.tobytes()
+
+
+def _same_element(name, a, b):
+    """Element rest data: bitwise, but the hinge weights (see the module docstring)."""
+    if name == "hinge_weight":
+        assert_close_ulps(a, b, err_msg=name)
+    else:
+        _same(a, b)
 
 
 def _build(mesh, compiled):
@@ -59,7 +73,7 @@ def _check(mesh):
         _same(getattr(h0, name), getattr(h1, name))
     for name in ("triangles", "area", "coef_u", "coef_v", "hinge_vertices", "hinge_weight",
                  "hinge_triangles", "coef_u_cm", "coef_v_cm", "triangles_cm"):
-        _same(getattr(e0, name), getattr(e1, name))
+        _same_element(name, getattr(e1, name), getattr(e0, name))
     assert e0.vertex_count == e1.vertex_count
     for name in ("indices", "indptr", "diagonal_block", "_all_slots"):
         _same(getattr(p0, name), getattr(p1, name))
