@@ -24,13 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene3d import (LIGHT, VIEWS, Z_ORDER, camera_direction, clip_polygon, cube_box,
-                      draw_obstacles, hidden_points, setup_axes, view_box)
+from .scene3d import (LIGHT, VIEWS, Z_ORDER, ObstacleArtists, camera_direction, clip_polygon,
+                      cube_box, draw_obstacles, hidden_points, obstacle_extent, setup_axes,
+                      view_box)
 
 __all__ = ["render_cloth", "render_frames", "render_levels", "render_lod_history",
            "ClothFrame", "ClothArtists", "frame_from_sim", "face_colours", "level_cmap",
            "level_colorbar", "view_box", "cube_box", "setup_axes", "draw_obstacles", "hidden_points",
-           "camera_direction", "clip_polygon", "VIEWS"]
+           "camera_direction", "clip_polygon", "ObstacleArtists", "obstacle_extent", "VIEWS"]
 
 _CLOTH_COLOUR = np.array([0.85, 0.45, 0.25])
 
@@ -93,6 +94,8 @@ class ClothFrame:
         grasps: ``(k, 3)`` points of the closed grasps, m.
         pins: ``(p, 3)`` held particles, m.
         title: text above the picture.
+        obstacles: the obstacle configs at this frame's poses (kinematic
+            obstacles move), or None: the ones the drawing was made with.
     """
 
     positions: np.ndarray
@@ -102,6 +105,7 @@ class ClothFrame:
     grasps: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     pins: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     title: str = ""
+    obstacles: tuple | None = None
 
     @property
     def corners(self) -> np.ndarray:
@@ -111,13 +115,15 @@ class ClothFrame:
 
 def frame_from_sim(sim, title: str = "") -> ClothFrame:
     """A copy of a :class:`~cloth_lod_ros.sim.ClothSim`'s state: the mesh, the
-    closed grasps' points and the particles held by active pins."""
+    closed grasps' points, the particles held by active pins and the obstacles
+    where they are now."""
     pins = [p.vertex for p in sim.pins if p.active(sim.time)]
     grasps = [g.position for g in sim.grasps if g.closed]
     return ClothFrame(sim.positions.copy(), sim.triangles.copy(),
                       sim.triangle_levels.copy(), float(sim.time),
                       np.array(grasps, float).reshape(-1, 3),
-                      sim.positions[np.array(pins, dtype=np.int64)].copy(), title)
+                      sim.positions[np.array(pins, dtype=np.int64)].copy(), title,
+                      tuple(sim.obstacle_configs()))
 
 
 # -- the cloth ----------------------------------------------------------------------
@@ -158,13 +164,20 @@ class ClothArtists:
                                fontsize=title_size)
 
     def update(self, frame: ClothFrame) -> list:
-        """Show ``frame``; returns the artists it changed."""
+        """Show ``frame`` (with its obstacles, if it has them, hiding faces);
+        returns the artists it changed."""
+        if frame.obstacles is not None:
+            self.obstacles = [o for o in frame.obstacles if o.type != "plane"]
         corners = frame.corners
         colours = face_colours(corners, frame.levels, self.max_level, self.ambient)
         hidden = np.zeros(len(corners), dtype=bool)
         if self.obstacles and len(corners):
-            per_corner = hidden_points(corners.reshape(-1, 3), self.obstacles, self.towards,
-                                       self.reach).reshape(-1, 3)
+            # Each distinct point once (a recorded surface repeats every shared
+            # corner, about six times).
+            points, inverse = np.unique(np.asarray(frame.positions, float).reshape(-1, 3),
+                                        axis=0, return_inverse=True)
+            at_point = hidden_points(points, self.obstacles, self.towards, self.reach)
+            per_corner = at_point[inverse.reshape(-1)][np.asarray(frame.triangles)]
             hidden = per_corner.sum(axis=1) >= 2
         self.behind.set_verts(corners[hidden])
         self.behind.set_facecolor(colours[hidden])

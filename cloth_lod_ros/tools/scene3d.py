@@ -7,6 +7,7 @@ Shared by :mod:`~cloth_lod_ros.tools.plotting` (still pictures) and
   axes around the cloth (obstacles included, clipped to a box around it);
 * :func:`draw_obstacles`: planes as a ground grid, spheres, discs/cylinders and
   boxes (with their orientation) as translucent surfaces;
+  :class:`ObstacleArtists` the same, moved frame by frame (kinematic obstacles);
 * :func:`hidden_points`: which points an obstacle hides from the camera (a ray
   cast against the obstacles' signed distances), so the cloth behind an
   obstacle can be drawn before it (mplot3d sorts polygons within a collection,
@@ -20,7 +21,8 @@ import numpy as np
 from ..sim.contact import make_obstacle, quaternion_matrix
 
 __all__ = ["VIEWS", "LIGHT", "Z_ORDER", "view_box", "cube_box", "setup_axes",
-           "draw_obstacles", "hidden_points", "camera_direction", "clip_polygon"]
+           "draw_obstacles", "ObstacleArtists", "obstacle_extent", "hidden_points",
+           "camera_direction", "clip_polygon"]
 
 # Views: (elevation, azimuth) in degrees, as mplot3d's view_init takes them.
 VIEWS = {"3d": (18.0, -60.0), "top": (90.0, -90.0), "side": (0.0, -90.0)}
@@ -32,8 +34,9 @@ Z_ORDER = dict(plane_behind=1, hidden=2, solid=3, cloth=5, holders=6, plane_fron
 
 
 # -- axes ---------------------------------------------------------------------------
-def _obstacle_extent(o, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Points bounding obstacle ``o`` (a plane: the cloth box projected onto it)."""
+def obstacle_extent(o, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``(k, 3)`` points bounding obstacle ``o``, m (a plane: the corners of the
+    cloth box ``lo``, ``hi`` projected onto it; the others do not use the box)."""
     centre = np.asarray(o.centre, float)
     if o.type == "plane":
         n = np.asarray(o.normal, float) / np.linalg.norm(o.normal)
@@ -57,21 +60,26 @@ def _box_corners(lo, hi) -> np.ndarray:
 
 
 def view_box(point_sets, obstacles=(), margin: float = 0.3,
-             pad: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
+             pad: float = 0.04, extents=()) -> tuple[np.ndarray, np.ndarray]:
     """``(lo, hi)`` axis limits (m) holding every point of every set, and the
     obstacles clipped to the cloth's box grown by ``margin`` × its largest side.
 
     Args:
-        point_sets: iterable of ``(n, 3)`` arrays (e.g. each frame's positions).
+        point_sets: iterable of ``(n, 3)`` arrays (e.g. each frame's positions,
+            or only their bounding corners).
         obstacles: :class:`~cloth_lod_ros.sim.config.ObstacleConfig` sequence.
+        extents: iterable of ``(k, 3)`` points bounding obstacles already
+            (e.g. :func:`obstacle_extent` over a moving obstacle's poses),
+            clipped as the obstacles are.
     """
     points = np.vstack([np.asarray(p, float).reshape(-1, 3) for p in point_sets])
     lo, hi = points.min(axis=0), points.max(axis=0)
     size = max(float((hi - lo).max()), 1e-3)
     clip_lo, clip_hi = lo - margin * size, hi + margin * size
     all_lo, all_hi = lo.copy(), hi.copy()
-    for o in obstacles:
-        extent = _obstacle_extent(o, lo, hi)
+    extents = [obstacle_extent(o, lo, hi) for o in obstacles] + [
+        np.asarray(e, float).reshape(-1, 3) for e in extents]
+    for extent in extents:
         all_lo = np.minimum(all_lo, extent.min(axis=0))
         all_hi = np.maximum(all_hi, extent.max(axis=0))
     lo = np.clip(all_lo, clip_lo, clip_hi) - pad * size
@@ -230,6 +238,40 @@ def _plane_cells(o, box) -> list:
     return [c for c in (clip_polygon(cell, box) for cell in cells) if c is not None]
 
 
+def _obstacle_style(o, box, towards: np.ndarray):
+    """What an obstacle looks like from ``towards`` inside ``box``: ``(polygons,
+    face RGBA (p, 4), edge RGBA, line width, base zorder)``, or None when
+    nothing of it is inside the box (planes: grid cells; solids: the faces
+    turned to the camera, shaded by their normal)."""
+    if o.type == "plane":
+        cells = _plane_cells(o, box)
+        if not cells:
+            return None
+        behind = float(_unit(o.normal) @ towards) >= -1e-9
+        return (cells, np.tile((0.82, 0.82, 0.8, 0.35), (len(cells), 1)),
+                (0.35, 0.35, 0.35, 0.45), 0.5,
+                Z_ORDER['plane_behind'] if behind else Z_ORDER['plane_front'])
+    polygons, normals = _solid_polygons(o)
+    front = normals @ towards > 1e-9          # faces turned to the camera
+    kept = [(clip_polygon(q, box), n) for q, n, f in zip(polygons, normals, front) if f]
+    kept = [(q, n) for q, n in kept if q is not None]
+    if not kept:
+        return None                           # outside the axes box
+    normals = np.array([n for _, n in kept])
+    shade = 0.55 + 0.45 * np.abs(normals @ LIGHT)
+    colours = np.column_stack([_OBSTACLE_GREY * shade[:, None],
+                               np.full(len(kept), _OBSTACLE_ALPHA)])
+    return [q for q, _ in kept], colours, "none", 0.0, Z_ORDER['solid']
+
+
+def _depth_ranks(obstacles, towards: np.ndarray) -> dict:
+    """Solids' drawing ranks, farther first (they do not overlap each other in
+    practice): ``{index in obstacles: rank}``."""
+    solids = [k for k, o in enumerate(obstacles) if o.type != "plane"]
+    order = sorted(solids, key=lambda k: float(np.asarray(obstacles[k].centre, float) @ towards))
+    return {k: rank for rank, k in enumerate(order)}
+
+
 def draw_obstacles(ax, obstacles, box, view: str = "3d") -> list:
     """Draw ``obstacles`` (:class:`~cloth_lod_ros.sim.config.ObstacleConfig`) on a
     3-D axes set up by :func:`setup_axes`.
@@ -247,39 +289,76 @@ def draw_obstacles(ax, obstacles, box, view: str = "3d") -> list:
     """
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
     towards = camera_direction(view)
+    ranks = _depth_ranks(obstacles, towards)
     artists = []
-    solids = [o for o in obstacles if o.type != "plane"]
-    # Farther solids first (they do not overlap each other in practice).
-    depth_rank = {id(o): k for k, o in enumerate(
-        sorted(solids, key=lambda o: float(np.asarray(o.centre, float) @ towards)))}
-    for o in obstacles:
-        if o.type == "plane":
-            cells = _plane_cells(o, box)
-            if not cells:
-                continue
-            behind = float(_unit(o.normal) @ towards) >= -1e-9
-            artist = Poly3DCollection(cells, facecolors=(0.82, 0.82, 0.8, 0.35),
-                                      edgecolors=(0.35, 0.35, 0.35, 0.45), linewidths=0.5,
-                                      zorder=Z_ORDER['plane_behind'] if behind else Z_ORDER['plane_front'])
-        else:
-            polygons, normals = _solid_polygons(o)
-            front = normals @ towards > 1e-9          # faces turned to the camera
-            kept = [(clip_polygon(q, box), n) for q, n, f in zip(polygons, normals, front) if f]
-            kept = [(q, n) for q, n in kept if q is not None]
-            if not kept:
-                continue                              # outside the axes box
-            normals = np.array([n for _, n in kept])
-            shade = 0.55 + 0.45 * np.abs(normals @ LIGHT)
-            colours = np.column_stack([_OBSTACLE_GREY * shade[:, None],
-                                       np.full(len(kept), _OBSTACLE_ALPHA)])
-            artist = Poly3DCollection([q for q, _ in kept], facecolors=colours,
-                                      edgecolors="none",
-                                      zorder=Z_ORDER['solid'] + 0.01 * depth_rank[id(o)])
+    for k, o in enumerate(obstacles):
+        style = _obstacle_style(o, box, towards)
+        if style is None:
+            continue
+        polygons, faces, edges, width, zorder = style
+        artist = Poly3DCollection(polygons, facecolors=faces, edgecolors=edges,
+                                  linewidths=width, zorder=zorder + 0.01 * ranks.get(k, 0))
         artist.set_label(o.name or o.type)
         artist.set_gid(f"obstacle:{o.type}")
         ax.add_collection3d(artist, autolim=False)
         artists.append(artist)
     return artists
+
+
+class ObstacleArtists:
+    """Obstacles drawn as :func:`draw_obstacles` draws them, moved frame by frame.
+
+    One collection per obstacle, made once; :meth:`update` recomputes the
+    polygons (``Poly3DCollection.set_verts``) of the obstacles whose config
+    changed since the last frame, so a static obstacle costs nothing after the
+    first frame.  An obstacle outside the axes box has an empty collection.
+
+    Args:
+        ax: a 3-D axes set up by :func:`setup_axes` with the same ``box`` and ``view``.
+        obstacles: the first frame's obstacle configs (their number and order
+            stay; later frames give the same obstacles at other poses).
+    """
+
+    def __init__(self, ax, obstacles, box, view: str = "3d"):
+        from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+        self.box = box
+        self.towards = camera_direction(view)
+        self.shown: list = [None] * len(obstacles)
+        self.artists = []
+        for o in obstacles:
+            artist = Poly3DCollection(np.zeros((0, 3, 3)))
+            artist.set_label(o.name or o.type)
+            artist.set_gid(f"obstacle:{o.type}")
+            ax.add_collection3d(artist, autolim=False)
+            self.artists.append(artist)
+        self.update(obstacles)
+
+    def update(self, obstacles) -> list:
+        """Show ``obstacles`` (configs in the order given at creation); returns
+        the artists whose polygons changed."""
+        if len(obstacles) != len(self.artists):
+            raise ValueError(f"{len(obstacles)} obstacles given, {len(self.artists)} drawn")
+        ranks = _depth_ranks(obstacles, self.towards)
+        changed = []
+        for k, (o, artist) in enumerate(zip(obstacles, self.artists)):
+            if self.shown[k] is not None and self.shown[k] == o:
+                continue
+            self.shown[k] = o
+            style = _obstacle_style(o, self.box, self.towards)
+            if style is None:
+                artist.set_verts([])
+                artist.set_facecolor(np.zeros((0, 4)))
+            else:
+                polygons, faces, edges, width, zorder = style
+                artist.set_verts(polygons)
+                artist.set_facecolor(faces)
+                artist.set_edgecolor(edges)
+                artist.set_linewidth(width)
+                artist.set_zorder(zorder)
+            changed.append(artist)
+        for k, rank in ranks.items():             # a moved solid may change places
+            self.artists[k].set_zorder(Z_ORDER['solid'] + 0.01 * rank)
+        return changed
 
 
 def hidden_points(points: np.ndarray, obstacles, towards: np.ndarray, reach: float,
