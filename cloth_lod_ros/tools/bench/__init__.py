@@ -5,7 +5,8 @@ run (integrator families × meshes, the converged reference's runs),
 ``worker`` is one run in one pinned process, ``rows`` turns the runs into
 table rows and the reference's own error, ``analysis``, ``report`` and
 ``plot`` write the Markdown summary, the CSV and the plot; ``backends`` is
-``--solvers``.
+``--solvers``, ``scenes`` is ``--scenes``; ``performance`` is ``--report``,
+one Markdown page (docs/performance.md) from all three modes' output files.
 """
 
 from .runner import BenchError, add_arguments, main, run

@@ -34,7 +34,9 @@ JSON adds the machine, the settings, the reference's runs and own error and
 per-repeat numbers), ``bench.png`` (error against cost, log–log) and
 ``bench.md`` (tables and paragraphs written from the numbers).
 ``--from-json bench.json`` rewrites the CSV, plot and summary of a finished
-run without running anything.
+run without running anything; ``--report MD`` writes one page from the
+``bench.json``, ``scenes.json`` and ``solvers.json`` in ``--out``
+(:mod:`.performance`), also without running anything.
 
 Module API for the command line: :func:`add_arguments` and :func:`run`;
 ``python -m cloth_lod_ros.tools.bench`` works too.  Worker processes are started as
@@ -97,17 +99,54 @@ def _run_worker(spec: dict, workdir: Path, tag: str) -> dict:
     return json.loads(result_path.read_text())
 
 
+class _LocalPool:
+    """The bench's own runner: each run in turn, in a fresh process pinned to
+    ``--cpu`` (:func:`_run_worker`).  ``map`` yields ``(key, result)``."""
+
+    workers = None
+    workdir: Path
+
+    def map(self, jobs):
+        for key, spec, tag in jobs:
+            t0 = _time.perf_counter()
+            result = _run_worker(spec, self.workdir, tag)
+            result["process_s"] = _time.perf_counter() - t0
+            yield key, result
+
+    def close(self) -> None:
+        pass
+
+
+def _pool(args):
+    """Where the runs run: this machine's ``--cpu`` (default), or Dask workers
+    (``--scheduler``/``--workers``: each run in a fresh process pinned to its
+    worker's core, one timed run per core at a time;
+    :class:`cloth_lod_ros.tools.sweep.cluster.PinnedDaskPool`)."""
+    if getattr(args, "scheduler", None) or getattr(args, "workers", None):
+        from ..sweep.cluster import PinnedDaskPool
+        return PinnedDaskPool(args.scheduler, args.workers, say=print)
+    return _LocalPool()
+
+
 def write_suite(out: Path, stem: str, rows: list, repeats: int, cpu: int, start: float,
                 render) -> dict:
     """Write ``stem``.json and ``stem``.md (``render(result)``) for a suite
     of pinned runs (``--solvers``, ``--scenes``) started at ``start``
     (``time.time()``); return the result."""
-    result = dict(machine=dict(platform=platform.platform(), processor=platform.processor(),
-                               cpu=cpu, python=platform.python_version()),
+    result = dict(machine=dict(_machine(cpu), processor=platform.processor(), cpu=cpu),
                   repeats=repeats, minutes=(_time.time() - start) / 60, rows=rows)
     (out / f"{stem}.json").write_text(json.dumps(result, indent=1))
     (out / f"{stem}.md").write_text(render(result))
     return result
+
+
+def _version(distribution: str) -> str:
+    """The installed version of ``distribution`` ("" if it is not installed)."""
+    from importlib import metadata
+    try:
+        return metadata.version(distribution)
+    except metadata.PackageNotFoundError:
+        return ""
 
 
 def _machine(cpu: int) -> dict:
@@ -130,7 +169,7 @@ def _machine(cpu: int) -> dict:
         commit, dirty = "", False
     return dict(cpu_model=model, logical_cpus=os.cpu_count(), pinned_cpu=cpu,
                 platform=platform.platform(), python=platform.python_version(),
-                numpy=np.__version__, scipy=scipy.__version__,
+                numpy=np.__version__, scipy=scipy.__version__, numba=_version("numba"),
                 date=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                 git_commit=commit + ("+dirty" if dirty else ""),
                 threads={name: "1" for name in THREAD_VARIABLES})
@@ -186,6 +225,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--set", action="append", metavar="KEY=VALUE",
                         help="scene override for every run, the reference's included "
                              "(repeatable)")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="run on the Dask workers of this scheduler (tcp://HOST:8786), "
+                             "each run in a fresh process pinned to its worker's core, one "
+                             "timed run per core at a time (needs the cluster extra)")
+    parser.add_argument("--workers", type=int,
+                        help="run on a local Dask cluster of this many workers, one per core "
+                             "(default without it or --scheduler: one run at a time on --cpu)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.add_argument("--dry-run", action="store_true",
                         help="print the runs (label, repeats, scene overrides) and stop")
@@ -200,6 +246,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--from-json", metavar="BENCH_JSON",
                         help="run nothing: rewrite the CSV, plot and summary of a finished "
                              "run from its bench.json (into --out, default beside it)")
+    parser.add_argument("--report", metavar="MD",
+                        help="run nothing: write one Markdown page (tables, plot, machine and "
+                             "command of each) from the bench.json, scenes.json and "
+                             "solvers.json in --out, e.g. --report docs/performance.md "
+                             "--out resource/readme/bench")
     return parser
 
 
@@ -276,6 +327,9 @@ def _command_line(args) -> str:
             parts.append(f"--{name.replace('_', '-')} {text}")
     if args.reference != "converged":
         parts.append(f"--reference {args.reference}")
+    for name in ("scheduler", "workers"):         # where it ran (Dask)
+        if getattr(args, name, None):
+            parts.append(f"--{name} {getattr(args, name)}")
     if args._reference_level_given:
         parts.append(f"--reference-level {args.reference_level}")
     if not args.mesh_check:
@@ -316,6 +370,16 @@ def run(args) -> int:
         args.out = "out/bench"
     if getattr(args, "from_json", None):
         return _rerender(Path(args.from_json), args.out if args._out_given else None)
+    if getattr(args, "report", None):
+        from .performance import write_report
+        try:
+            write_report(Path(args.report), Path(args.out))
+        except (OSError, ValueError) as exc:
+            print(f"cloth-lod bench: cannot write the report: {exc}", file=sys.stderr)
+            return 2
+        say = (lambda *a: None) if getattr(args, "quiet", False) else print
+        say(f"wrote {args.report}")
+        return 0
     started = _time.perf_counter()
     say = (lambda *a: None) if getattr(args, "quiet", False) else (
         lambda *a: print(*a, flush=True))
@@ -330,6 +394,13 @@ def run(args) -> int:
             except BenchError as exc:
                 print(f"cloth-lod bench: {exc}", file=sys.stderr)
                 return 3
+            # The command that reproduces the suite, for the report (--report).
+            result["command"] = " ".join(
+                ["cloth-lod bench", f"--{flag}"] + (["--quick"] if args.quick else [])
+                + ([f"--repeats {args.repeats}"] if args.repeats else [])
+                + [f"--out {args.out}"])
+            stem = table.removesuffix(".md")
+            (Path(args.out) / f"{stem}.json").write_text(json.dumps(result, indent=1))
             say(f"wrote {Path(args.out) / table} ({result['minutes']:.1f} min)")
             return 0
     try:
@@ -371,34 +442,50 @@ def run(args) -> int:
     finder = configs[0]
     say(f"cloth-lod bench: {len(configs)} runs x {args.repeats} repeats on CPU {args.cpu}; "
         + (reference.describe() if reference else SAME_STEP_LABEL))
+    by_key = {c["key"]: c for c in configs}
+    try:
+        pool = _pool(args)
+    except RuntimeError as exc:                 # no cluster, or workers that cannot run
+        print(f"cloth-lod bench: {exc}", file=sys.stderr)
+        return 2
+    if pool.workers:
+        say(f"  on {len(pool.workers)} Dask worker(s): " + ", ".join(
+            f"{w['host']} cpu {w['cpu']}" for w in pool.workers.values()))
     try:
         with tempfile.TemporaryDirectory(prefix="cloth_lod_bench_") as tmp:
-            workdir = Path(tmp)
+            pool.workdir = Path(tmp)
             rest_time = rest_info = None
             for rnd in range(args.repeats):
-                for cfg in configs:
-                    if cfg["kind"] in REFERENCE_KINDS and rnd > 0:
-                        continue            # the converged reference runs once
-                    spec = dict(base_spec, overrides=cfg["overrides"])
-                    if rnd == 0:
-                        spec.update(_rest_spec(cfg, finder, rest_time, args, h))
-                    t0 = _time.perf_counter()
-                    result = _run_worker(spec, workdir, f"{cfg['key']}_r{rnd}")
-                    result["process_s"] = _time.perf_counter() - t0
-                    if rnd == 0 and cfg is finder:
-                        rest_time = result["rest_time"]
-                        rest_info = dict(time=rest_time, at_rest=result["at_rest"],
-                                         ke_per_mass=result["ke_per_mass"][-1])
-                    runs[cfg["key"]].append(result)
-                    c = result["cost"]
-                    loads += [c["loadavg_start"], c["loadavg_end"]]
-                    say(f"  [{rnd + 1}/{args.repeats}] {cfg['label'][:58]:58s} "
-                        f"{c['wall_s'] / c['simulated_s']:7.3f} s/s  "
-                        f"{c['solves'] / c['steps']:5.2f} solves/step  "
-                        f"(process {result['process_s']:5.1f} s)")
+                # The converged reference runs once; in the first round the run
+                # that finds the rest time goes alone, the others sample at it.
+                batch = [c for c in configs if not (c["kind"] in REFERENCE_KINDS and rnd > 0)]
+                for part in ([batch[:1], batch[1:]] if rnd == 0 else [batch]):
+                    jobs = []
+                    for cfg in part:
+                        spec = dict(base_spec, overrides=cfg["overrides"])
+                        if rnd == 0:
+                            spec.update(_rest_spec(cfg, finder, rest_time, args, h))
+                        jobs.append((cfg["key"], spec, f"{cfg['key']}_r{rnd}"))
+                    for key, result in pool.map(jobs):
+                        cfg = by_key[key]
+                        if rnd == 0 and cfg is finder:
+                            rest_time = result["rest_time"]
+                            rest_info = dict(time=rest_time, at_rest=result["at_rest"],
+                                             ke_per_mass=result["ke_per_mass"][-1])
+                        runs[cfg["key"]].append(result)
+                        c = result["cost"]
+                        loads += [c["loadavg_start"], c["loadavg_end"]]
+                        say(f"  [{rnd + 1}/{args.repeats}] {cfg['label'][:58]:58s} "
+                            f"{c['wall_s'] / c['simulated_s']:7.3f} s/s  "
+                            f"{c['solves'] / c['steps']:5.2f} solves/step  "
+                            f"(process {result['process_s']:5.1f} s)"
+                            + (f"  [{result['host']} cpu {result['cpu']}]"
+                               if "host" in result else ""))
     except BenchError as exc:
         print(f"cloth-lod bench: {exc}", file=sys.stderr)
         return 3
+    finally:
+        pool.close()
 
     fams = {f["key"]: f for f in args._families}
     for f in fams.values():
@@ -414,6 +501,9 @@ def run(args) -> int:
         rows.append(config_row(cfg, runs[cfg["key"]], ref_samples, times, side, points,
                                fams[cfg["family"]],
                                "converged" if reference else SAME_STEP_LABEL))
+        if pool.workers:                    # what ran where (host/CPU of each repeat)
+            rows[-1]["ran_on"] = " ".join(f"{r['host']}/cpu{r['cpu']}"
+                                          for r in runs[cfg["key"]])
     if reference:
         ref_info = dict(reference.as_dict(), mesh_check=bool(args.mesh_check),
                         **reference_summary(configs, runs, times, side))
@@ -430,6 +520,8 @@ def run(args) -> int:
         coarsen_ratio=args.coarsen_ratio, initial_level=scene.lod.initial_level,
         rest_threshold=args.rest_threshold, rest_window=args.rest_window,
         rest_cap=args.rest_cap, overrides=list(args.set or []), quick=bool(args.quick))
+    if pool.workers:
+        settings["dask_workers"] = pool.workers
     result = dict(settings=settings, machine=_machine(args.cpu), reference=ref_info,
                   rest=rest_info, rows=rows, paper=paper_row(rows, runs, scene),
                   runs={k: [dict(v, samples=None) for v in vs] for k, vs in runs.items()},
