@@ -128,7 +128,7 @@ def test_configurations_and_machine_recorded(tiny):
     assert rows["baraff_witkin_uniform_L2"]["integrator"] == "baraff_witkin"
     assert rows["sdirk2_tol0.001_adaptive_L2_1mm"]["error_tolerance_m"] == 0.001
     machine = data["machine"]
-    for key in ("cpu_model", "logical_cpus", "python", "numpy", "scipy", "date"):
+    for key in ("cpu_model", "logical_cpus", "python", "numpy", "scipy", "numba", "date"):
         assert machine[key], key
     # Every worker ran pinned to the one CPU; the reference runs once, the
     # configurations once per round.
@@ -309,6 +309,10 @@ def test_scene_table_times_every_case_and_pairs_self_collision_with_its_base(tmp
     assert bench.main(["--scenes", "--quick", "--repeats", "1", "--quiet",
                        "--out", str(tmp_path)]) == 0
     data = json.loads((tmp_path / "scenes.json").read_text())
+    # What the performance report quotes: the command and the machine.
+    assert data["command"] == f"cloth-lod bench --scenes --quick --repeats 1 --out {tmp_path}"
+    for key in ("cpu_model", "logical_cpus", "python", "numpy", "scipy", "numba", "date"):
+        assert data["machine"][key], key
     from cloth_lod_ros.tools.bench.scenes import QUICK_SCENE_CASES
     assert [r["case"] for r in data["rows"]] == [c.label for c in QUICK_SCENE_CASES]
     assert (tmp_path / "scenes.md").read_text().count("\n| ") == len(data["rows"]) + 1
@@ -329,3 +333,144 @@ def test_scene_table_times_every_case_and_pairs_self_collision_with_its_base(tmp
             base = next(r for r in data["rows"] if r["case"] == case.vs)
             assert row["ratio_to_vs"] == pytest.approx(row["ms_per_frame"]
                                                        / base["ms_per_frame"])
+
+
+# --- the performance report (``--report``): one page from the output files -----------------
+
+def _table_lines(page: str, first_cell: str) -> list[str]:
+    """The table rows of ``page`` whose first cell is ``first_cell``."""
+    return [line for line in page.splitlines() if line.startswith(f"| {first_cell} |")]
+
+
+def _suite_costs(ms_per_frame: float, frames: int = 60, self_ms: float = 0.0) -> dict:
+    """A worker's cost counters (``worker._worker``'s ``cost``) for a run of
+    ``frames`` frames of 1/60 s taking ``ms_per_frame`` each."""
+    internal = 0.9 * ms_per_frame * frames
+    return dict(wall_s=ms_per_frame * frames / 1e3, steps=frames, simulated_s=frames / 60,
+                internal_step_ms=internal, lod_ms=0.1 * internal, force_ms=0.2 * internal,
+                assembly_ms=0.05 * internal, solve_ms=0.5 * internal,
+                self_collision_ms=self_ms * frames, solves=2 * frames, substeps=frames,
+                rejected_steps=0, unconverged_steps=0, triangles_mean=512.0,
+                solvers=["block_ldl"])
+
+
+@pytest.fixture(scope="module")
+def report_inputs(tiny, tmp_path_factory):
+    """A results directory as the three modes leave it: the tiny run's
+    ``bench.json`` and plot, a ``scenes.json`` written by the suites' writer
+    with rows from the scene table's row builder (command recorded), and a
+    ``solvers.json`` as written before suites recorded their command and
+    machine (the committed files' schema)."""
+    import shutil
+    import time
+    from cloth_lod_ros.tools.bench import runner
+    from cloth_lod_ros.tools.bench.scenes import SceneCase, _row, markdown as scenes_md
+    _, out, _, _ = tiny
+    results = tmp_path_factory.mktemp("results")
+    for name in ("bench.json", "bench.png"):
+        shutil.copy(out / name, results / name)
+    base = SceneCase("hang L3", "hang_two_corners", ["cloth.level=3"], 1.0)
+    other = SceneCase("hang L3, self-collision on", "hang_two_corners",
+                      ["cloth.level=3", "self_collision.enabled=true"], 1.0, vs="hang L3")
+    rows = [_row(base, [_suite_costs(t) for t in (4.0, 4.4, 5.0)]),
+            _row(other, [_suite_costs(t, self_ms=0.2) for t in (4.6, 4.2, 6.0)])]
+    rows[1].update(vs="hang L3", ratio_to_vs=rows[1]["ms_per_frame"] / rows[0]["ms_per_frame"])
+    scenes = runner.write_suite(results, "scenes", rows, 3, 0, time.time(), scenes_md)
+    scenes["command"] = f"cloth-lod bench --scenes --out {results}"
+    (results / "scenes.json").write_text(json.dumps(scenes))
+    solver_rows = [dict(case=case, backend=backend, solver=backend, ms_per_step=ms,
+                        ratio_to_pcg=ms / pcg, solve_share=0.8, cg_iterations_per_step=cg,
+                        solves_per_step=2.0, unconverged_steps=0, triangles_mean=512.0,
+                        max_distance_from_pcg_m=d)
+                   for case, pcg in (("uniform L3", 7.25), ("grasp_lift L3", 31.5))
+                   for backend, ms, cg, d in (("pcg", pcg, 120.0, 0.0),
+                                              ("block_ldl", pcg / 3, 0.0, 2.5e-5))]
+    solvers = dict(machine=dict(platform="Linux-test-x86_64", processor="", cpu=1,
+                                python="3.11.7"), repeats=2, minutes=1.5, rows=solver_rows)
+    (results / "solvers.json").write_text(json.dumps(solvers))
+    return results, json.loads((results / "bench.json").read_text()), scenes, solvers
+
+
+def test_report_holds_every_row_with_its_machine_and_command(report_inputs, tmp_path):
+    results, data, scenes, solvers = report_inputs
+    page_path = tmp_path / "docs" / "performance.md"
+    assert bench.main(["--report", str(page_path), "--out", str(results), "--quiet"]) == 0
+    page = page_path.read_text()
+    # The command that writes the page, and each section's own command.
+    assert f"cloth-lod bench --report {page_path} --out {results}" in page
+    assert f"Command: `{data['settings']['command']}`" in page
+    assert f"Command: `{scenes['command']}`" in page
+    assert f"`cloth-lod bench --solvers --repeats 2 --out {results}` (rebuilt" in page
+    # The machine as each file records it; what a file lacks is said, not guessed.
+    m = data["machine"]
+    assert m["cpu_model"] and m["numba"]          # the bench records both now
+    for value in (m["cpu_model"], f"logical CPUs: {m['logical_cpus']}", f"Python {m['python']}",
+                  f"numpy {m['numpy']}", f"scipy {m['scipy']}", f"numba {m['numba']}",
+                  m["date"]):
+        assert value in page, value
+    assert "CPU not recorded" in page and "numpy not recorded" in page   # the old solvers file
+    assert "platform Linux-test-x86_64" in page
+    if m.get("git_commit"):
+        assert m["git_commit"].removesuffix("+dirty") not in page        # no commit hashes
+    # Every row of every file, with its numbers.
+    for r in data["rows"]:
+        [line] = _table_lines(page, r["label"])
+        assert f"| {r['wall_per_sim_s_median']:.3g} (" in line, r["label"]
+        assert f"| {r['ms_per_frame_median']:.3g} |" in line, r["label"]
+    for r in scenes["rows"]:
+        [line] = _table_lines(page, r["case"])
+        assert f"| {r['ms_per_frame']:.1f} | {r['real_time_factor']:.2f} |" in line, r["case"]
+    assert f"{scenes['rows'][1]['ratio_to_vs']:.3f} × hang L3" in page
+    for r in solvers["rows"]:
+        lines = [line for line in _table_lines(page, r["case"])
+                 if f"| {r['backend']} ({r['solver']}) |" in line]
+        assert len(lines) == 1 and f"| {r['ms_per_step']:.1f} |" in lines[0], r
+    # The pivot table: one line per case with each backend's time.
+    for case, pcg in (("uniform L3", 7.25), ("grasp_lift L3", 31.5)):
+        [line] = [line for line in _table_lines(page, case) if "CG it.)" in line]
+        assert f"{pcg:.1f} (120 CG it.)" in line and f"| {pcg / 3:.1f} |" in line
+    # The plot is linked relative to the page and resolves to the results' plot.
+    import re
+    [image] = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", page)
+    assert (page_path.parent / image).resolve() == (results / "bench.png").resolve()
+    # The contents lines point at the sections' headings.
+    from cloth_lod_ros.tools.bench.performance import anchor
+    headings = {anchor(line.lstrip("# ")) for line in page.splitlines()
+                if line.startswith("## ")}
+    targets = re.findall(r"^- \[[^\]]+\]\(#([^)]+)\)$", page, flags=re.M)
+    assert len(targets) == 3 and set(targets) <= headings
+
+
+def test_report_from_one_file_and_refusals(report_inputs, tmp_path, capsys):
+    import shutil
+    results, data, _, _ = report_inputs
+    only = tmp_path / "only"
+    only.mkdir()
+    shutil.copy(results / "bench.json", only / "bench.json")
+    page_path = tmp_path / "performance.md"
+    assert bench.main(["--report", str(page_path), "--out", str(only), "--quiet"]) == 0
+    page = page_path.read_text()
+    assert "## Speed against error" in page
+    assert "--scenes`" not in page and "--solvers`" not in page
+    # An empty directory, or a file that is not a result: exit 2 with a message.
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert bench.main(["--report", str(tmp_path / "x.md"), "--out", str(empty)]) == 2
+    assert "no benchmark results" in capsys.readouterr().err
+    (only / "scenes.json").write_text(json.dumps({"rows": []}))
+    assert bench.main(["--report", str(tmp_path / "x.md"), "--out", str(only)]) == 2
+    assert "not a cloth-lod bench result" in capsys.readouterr().err
+    assert not (tmp_path / "x.md").exists()
+
+
+def test_committed_performance_page_is_the_report_of_the_committed_results():
+    """docs/performance.md is generated: the report of the committed result
+    files is the committed page, byte for byte (regenerate it with the
+    command it quotes after changing the generator or the results)."""
+    from cloth_lod_ros.tools.bench.performance import collect, markdown
+    results = collect(REPO / "resource" / "readme" / "bench")
+    assert set(results) == {"bench", "scenes", "solvers"}
+    page = markdown(results, "../resource/readme/bench",
+                    "cloth-lod bench --report docs/performance.md --out resource/readme/bench",
+                    "resource/readme/bench")
+    assert page == (REPO / "docs" / "performance.md").read_text()
