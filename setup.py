@@ -17,6 +17,19 @@ ROS_WHEELS = [
 BAG = ["mcap>=1.2"]
 # Independent readers used by the tests to check our bags.
 BAG_READERS = ["mcap-ros2-support>=0.5", "rosbags>=0.10"]
+# The live view (cloth_lod_ros/live): Foxglove's WebSocket server (MIT; abi3
+# wheels for x86_64 and aarch64, manylinux_2_28; no dependencies).
+VIEWER = ["foxglove-sdk>=0.30"]
+# `cloth-lod view` writes MP4 (H.264) through the ffmpeg binary that imageio-ffmpeg
+# (BSD-2) ships in its wheel and runs as a separate program (a GPL-3 build with
+# libx264); without it, `view` writes GIF.
+VIEWER += ["imageio-ffmpeg>=0.5"]
+# A Foxglove WebSocket client and protobuf decoder, written independently of the
+# SDK, with which the tests check what the live view sends.
+VIEWER_CLIENT = ["websockets>=13", "protobuf>=4.25"]
+# `cloth-lod sweep` (and `cloth-lod bench --scheduler`): runs as tasks on
+# dask.distributed (BSD-3, pure Python), a LocalCluster or an existing scheduler.
+CLUSTER = ["dask[distributed]>=2024.1"]
 
 setup(
     name=PACKAGE,
@@ -27,6 +40,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.rviz")),
         (f"share/{PACKAGE}/config/scenes", glob("config/scenes/*.yaml")),
+        (f"share/{PACKAGE}/config/sweeps", glob("config/sweeps/*.yaml")),
         (f"share/{PACKAGE}/launch", glob("config/*.launch.py")),
     ],
     python_requires=">=3.10",
@@ -37,12 +51,22 @@ setup(
     # its numpy reference code and PCG/multigrid.  threadpoolctl (pure Python):
     # one BLAS thread inside a step (sim/blas_threads.py: idle threads spun
     # on the second core, and the thread count changed results at round-off).
-    install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6",
+    # Lower bounds only (a library; the tested versions are pinned in
+    # constraints.txt, scripts/refresh-constraints), except where a major
+    # release is known to break: numpy's majors remove API (2.0 did, and numba
+    # releases cap the numpy they support), and scipy's docs announce that the
+    # sparse *matrix* classes we build (bsr_matrix, csr_matrix) will give way
+    # to the sparse arrays, a change for its next major.
+    install_requires=["setuptools", "numpy>=1.24,<3", "scipy>=1.10,<2", "PyYAML>=6",
                       "matplotlib>=3.6", "qdldl>=0.1.7", "numba>=0.60",
                       "threadpoolctl>=3.1"],
     extras_require={
         "ros": ROS_WHEELS + BAG,
-        "test": ROS_WHEELS + BAG + BAG_READERS + ["pytest>=7", "hypothesis>=6"],
+        "test": ROS_WHEELS + BAG + BAG_READERS + VIEWER + VIEWER_CLIENT + CLUSTER
+                + ["pytest>=7", "hypothesis>=6"],
+        # mcap: `cloth-lod view` reads bags.
+        "viewer": VIEWER + BAG,
+        "cluster": CLUSTER,
         # Optional: CHOLMOD's supernodal Cholesky for solver.method cholmod/auto
         # (about 0.4x QDLDL's factorisation).  cvxopt is GPL-3.0: not installed
         # by default.
@@ -57,7 +81,7 @@ setup(
     entry_points={
         "console_scripts": [
             "cloth-lod = cloth_lod_ros.tools.cli:main",
-            "cloth_lod_node = cloth_lod_ros.ros.node:main",
+            "cloth_lod_node = cloth_lod_ros.ros.startup:node_main",   # prints before the imports
         ],
     },
 )

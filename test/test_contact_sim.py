@@ -149,7 +149,7 @@ def test_teleporting_target_is_caught_up_at_the_speed_limit(caplog):
     g = sim.grasp("hand")
     node = int(np.searchsorted(sim.vertex_ids, g.nodes[0]))
     target = sim.positions[node] + np.array([0.5, 0.0, 0.0])
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.INFO):
         sim.set_grasp_target("hand", target)
         previous = sim.positions[node].copy()
         for _ in range(40):

@@ -33,6 +33,10 @@ Services: ``grasp/<name>/close`` (std_srvs/SetBool: true holds, false releases),
   ``cloth/reset``, ``cloth/step`` (std_srvs/Trigger), ``cloth/pause`` (std_srvs/SetBool),
   ``cloth/record`` (std_srvs/SetBool: true starts a bag, false finishes it).
 
+Live view without RViz (parameter ``foxglove_port``, e.g. 8765; 0 = off; needs the
+``viewer`` extra): a Foxglove WebSocket server on ``foxglove_host`` sends each published
+frame, at most 60 per second, to Foxglove (:mod:`cloth_lod_ros.live`).
+
 Recording (parameter ``record`` or the service) writes a rosbag2 MCAP bag of the
 session: inputs as applied, outputs as published, and the scene and parameters
 (:mod:`cloth_lod_ros.bag.recorder`).  A recording failure is logged and reported in
@@ -51,6 +55,7 @@ from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterNotDeclaredException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -60,6 +65,7 @@ from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
+from ..live.server import LiveViewError
 from ..messages.frames import FrameBuilder, standard_diagnostics
 from ..sim import ClothSim, SimulationError
 from ..sim.config import SceneError, load_scene, scene_to_dict
@@ -86,7 +92,11 @@ SWITCH_INTERVAL = 2e-4          # s, see main()
 class ClothLodNode(Node):
     """Runs a cloth scene, driven by grasp poses, publishing its mesh and statistics."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, started: float | None = None, **kwargs):
+        """``started``: ``time.monotonic()`` when the process started (the
+        first frame's log line counts from it; default: now)."""
+        self._started = time.monotonic() if started is None else started
+        self._first_frame_logged = False
         super().__init__("cloth_lod_node", **kwargs)
         parameters.declare_parameters(self)
         scene = load_scene(self.get_parameter("scene").value)   # SceneError: main() exits 2
@@ -96,7 +106,7 @@ class ClothLodNode(Node):
 
         self.frame_id = self.get_parameter("frame_id").value
         self.publish_clock = bool(self.get_parameter("publish_clock").value)
-        forward_library_logs(self.get_logger())
+        forward_library_logs(self.get_logger())     # INFO: the kernels' warm-up, in _build_sim
         self.queue = InputQueue()
         self.rejected = dict.fromkeys(POSE_REJECTIONS, 0)
         self.rejected.update(invalid=0, requests=0, parameters=0)
@@ -106,6 +116,7 @@ class ClothLodNode(Node):
         self.paused = bool(self.get_parameter("paused").value)
         self._limits = self._pose_limits()
         self._build_sim()
+        self.live = self._start_live_view()         # before anything that needs closing
         self.recording = NodeRecording(self.get_namespace(),
                                        self.get_parameter("record_compression").value,
                                        [g.name for g in self.sim.grasps], self.get_logger(),
@@ -194,6 +205,18 @@ class ClothLodNode(Node):
                                              else "")
             + ("; /clock from simulated time" if self.publish_clock else ""))
 
+    def _start_live_view(self):
+        """The Foxglove live view with ``foxglove_port`` > 0 (else None); raises
+        :class:`~cloth_lod_ros.live.server.LiveViewError` (main: exit code 2)."""
+        port = self.get_parameter("foxglove_port").value
+        if not port:
+            return None
+        from ..live.server import LiveView
+        live = LiveView(self.get_parameter("foxglove_host").value, port, self.frame_id)
+        for line in live.instructions().splitlines():
+            self.get_logger().info(line.strip())
+        return live
+
     def _pose_limits(self) -> PoseLimits:
         return PoseLimits(self.frame_id, float(self.get_parameter("stale_pose_timeout").value),
                           tuple(self.get_parameter("workspace_min").value),
@@ -217,13 +240,38 @@ class ClothLodNode(Node):
         """Validate a set of changes as a whole; refuse with the reason, keep old values."""
         result, scene, changes = parameters.validate(
             params, lambda name: self.get_parameter(name).value, self._param_scene)
-        if not result.successful:
-            self.rejected["parameters"] += 1
         if result.successful and changes:
             if not self.queue.put_command("parameters", changes):
                 return SetParametersResult(successful=False, reason=self._busy())
             self._param_scene = scene
         return result
+
+    def set_parameters_atomically(self, parameter_list):
+        """rclpy's, counting a refused set in ``rejected_parameters`` wherever it
+        is refused: by rclpy before :meth:`_validate_parameters` runs (an
+        undeclared name - raised -, a read-only parameter, a wrong type, a value
+        outside the declared range, unsetting a declared parameter) or by it.
+        Both parameter services (``set_parameters`` once per parameter,
+        ``set_parameters_atomically``) call this method."""
+        try:
+            result = super().set_parameters_atomically(parameter_list)
+        except ParameterNotDeclaredException:
+            self.rejected["parameters"] += 1
+            raise
+        if not result.successful:
+            self.rejected["parameters"] += 1
+        return result
+
+    def set_parameters(self, parameter_list):
+        """rclpy's (each parameter set on its own), counting each refusal like
+        :meth:`set_parameters_atomically`."""
+        try:
+            results = super().set_parameters(parameter_list)
+        except ParameterNotDeclaredException:
+            self.rejected["parameters"] += 1
+            raise
+        self.rejected["parameters"] += sum(not r.successful for r in results)
+        return results
 
     def _parameters_set(self, params) -> None:
         """After a change took effect: refresh what the input threads read, and
@@ -369,6 +417,10 @@ class ClothLodNode(Node):
 
     def _publish_on_schedule(self) -> None:
         self._publish()
+        if not self._first_frame_logged:
+            self._first_frame_logged = True
+            self.get_logger().info(
+                f"first frame published {time.monotonic() - self._started:.1f} s after start")
         now = time.monotonic()
         period = 1.0 / self.get_parameter("publish_rate").value
         # A fixed schedule: the rate is exact on average whatever the tick
@@ -486,6 +538,8 @@ class ClothLodNode(Node):
 
     def destroy_node(self):
         self.recording.stop()
+        if getattr(self, "live", None) is not None:
+            self.live.close()
         return super().destroy_node()
 
     # -- outputs -------------------------------------------------------------------
@@ -536,13 +590,19 @@ class ClothLodNode(Node):
                   "internal_errors": str(self.internal_errors),
                   "recording": recording}
         values.update({f"rejected_{k}": str(v) for k, v in self.rejected.items()})
-        frames = self.frames.build(sim, self._stamp(), values, bytes([level]), message)
+        stamp = self._stamp()
+        frames = self.frames.build(sim, stamp, values, bytes([level]), message)
         self.markers_pub.publish(frames["cloth/markers"])
         self.points_pub.publish(frames["cloth/points"])
         self.grid_pub.publish(frames["cloth/grid"])
         self.stats_pub.publish(frames["cloth/lod_stats"])
         self._last_values, self._last_message = values, message
         self.recording.frame(frames, self._now_ns())
+        if self.live is not None:
+            try:            # a viewer's trouble never stops the node
+                self.live.publish(sim, stamp[0] * 1_000_000_000 + stamp[1], values)
+            except Exception as exc:
+                self.get_logger().error(f"live view: {exc!r}", throttle_duration_sec=5.0)
 
     def _publish_diagnostics(self) -> None:
         """``/diagnostics``: one status with numbers a tool can plot."""
@@ -574,9 +634,12 @@ def _time_msg(seconds: float):
     return msg
 
 
-def main(args=None) -> None:
-    """Entry point (``cloth_lod_node``); Ctrl-C and SIGTERM end it with code 0, a bad
-    ``scene`` with one line on stderr and code 2."""
+def main(args=None, started: float | None = None) -> None:
+    """Run the node (``cloth_lod_node`` runs :func:`~cloth_lod_ros.ros.startup.node_main`,
+    which prints the kernels' line first); Ctrl-C and SIGTERM end it with code 0, a bad
+    ``scene`` with one line on stderr and code 2.  ``started``: ``time.monotonic()`` at
+    the process's start."""
+    started = time.monotonic() if started is None else started
     # Input threads must get the interpreter within a fraction of a millisecond
     # while the stepping thread computes (the default 5 ms switch interval let a
     # 100 Hz pose stream fall seconds behind on a busy step).
@@ -585,9 +648,12 @@ def main(args=None) -> None:
     node = None
     try:
         try:
-            node = ClothLodNode()
+            node = ClothLodNode(started=started)
         except SceneError as exc:       # a bad `scene`: one line, as the CLI says it
             print(f"cloth_lod_node: scene error: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+        except LiveViewError as exc:    # foxglove_port set: no foxglove-sdk, or the port is taken
+            print(f"cloth_lod_node: live view: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
         # Threads: stepping and publishing; poses; service calls; parameters.
         executor = MultiThreadedExecutor(num_threads=4)

@@ -98,6 +98,13 @@ def declare_parameters(node) -> None:
         read_only=True))
     node.declare_parameter("record_compression", "zstd", string(
         description=f"MCAP chunk compression: {', '.join(COMPRESSIONS)}", read_only=True))
+    node.declare_parameter("foxglove_port", 0, ParameterDescriptor(
+        description="serve the live view to Foxglove on this WebSocket port (e.g. 8765; "
+                    "0 = off; needs the viewer extra)", read_only=True,
+        integer_range=[IntegerRange(from_value=0, to_value=65535, step=1)]))
+    node.declare_parameter("foxglove_host", "127.0.0.1", string(
+        description="address the live view listens on (0.0.0.0: every interface)",
+        read_only=True))
 
 
 def declare_scene_parameters(node, scene: SceneConfig) -> None:

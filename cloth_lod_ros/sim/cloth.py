@@ -125,6 +125,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
         """
         if keep_stats is not None and keep_stats < 1:
             raise ValueError(f"keep_stats must be at least 1, got {keep_stats}")
+        warm_up_compiled_code(scene)    # the kernels this scene needs, before any is called
         self.scene = scene
         cloth = scene.cloth
         base = base_mesh(cloth.width, cloth.height, *cloth.base_blocks)
@@ -179,7 +180,6 @@ class ClothSim(HeldInputs, ObstacleInputs):
         self.contacts = None
         self._contacts_version = -1
         self._step_operations: OperationLog | None = None   # the LOD operations of the step running
-        warm_up_compiled_code()
 
     def _adopt_hierarchy(self) -> None:
         """Refresh the compact arrays after the hierarchy's topology changed."""

@@ -146,10 +146,10 @@ class ObstacleMotion:
         """Take the pose :meth:`next_pose` gave, once the step has succeeded."""
         if self._lagging and not self.lagging:
             self.jumps += 1
-            log.warning("obstacle %r: target is %.3f m away (more than %.3f m/s x %.4g s) "
-                        "or turned faster than %.3g rad/s; catching up at the speed limit",
-                        self.name, self._target_distance, self.max_speed, h,
-                        self.max_angular_speed)
+            log.info("obstacle %r: target is %.3f m away (more than %.3f m/s x %.4g s) "
+                     "or turned faster than %.3g rad/s; catching up at the speed limit",
+                     self.name, self._target_distance, self.max_speed, h,
+                     self.max_angular_speed)
         self.lagging = self._lagging
         self.position, self.rotation = position, rotation
 

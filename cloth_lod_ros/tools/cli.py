@@ -2,18 +2,23 @@
 
     cloth-lod run SCENE [--duration S] [--dt H] [--level L] [--set key=value ...]
                         [--out state.npz] [--png picture.png] [--frames N] [--quiet]
+                        [--foxglove [PORT]] [--foxglove-host HOST]   served live to Foxglove
     cloth-lod compare SCENE [--level L] [--duration S] [--set key=value ...] [--json F]
                       [--reference converged|same-step] [--mesh-check] ...
     cloth-lod scenes
     cloth-lod bench [SCENE] [--quick] ...        speed against error (cloth_lod_ros.tools.bench)
     cloth-lod stress [--quick] ...               hard-case stability suite (cloth_lod_ros.tools.stress)
+    cloth-lod sweep SPEC.yaml [--workers N | --scheduler ADDR] [--resume] ...
+                                                 many runs of a scene on Dask (tools.sweep)
     cloth-lod analyze BAG [--png F] [--json [F]] summary and plots of a recorded session
     cloth-lod replay BAG [--json [F]]            re-simulate a recording and compare
     cloth-lod recover BAG [--out DIR]            rebuild an interrupted recording
     cloth-lod play BAG [--rate R] [--loop] [--topics T ...]   republish (a ROS node)
-    cloth-lod view BAG_OR_SCENE [--out anim.gif] [--fps 15] [--duration S] [--level L]
-                   [--set key=value ...] [--every N] [--size WxH] [--view 3d|top|side]
-                                                 animate a bag or a headless run (no ROS graph)
+    cloth-lod view BAG_OR_SCENE [--out video.mp4|anim.gif|sheet.png] [--fps 15] [--speed 1]
+                   [--duration S] [--size WxH] [--view 3d|top|side] [--tiles N]
+                   [--level L] [--set key=value ...]
+                                                 a video of a bag (real speed, obstacles where
+                                                 they were) or of a headless run (no ROS graph)
 
 ``run`` simulates headless and writes the final state (x, v, uv, mass,
 triangles, time) and the per-step statistics to an ``.npz`` file, and a PNG of
@@ -29,12 +34,15 @@ import logging
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..bag.rosbag import BagError
-from ..sim.config import SceneError, builtin_scene_names, load_scene
-from ..sim import ClothSim, SimulationError, StepStats
+# The simulator (numpy, scipy, numba: 1-3 s) and the bag code (PyYAML) are
+# imported where they are used, after main() has printed what the kernels will
+# cost (ros/startup.py).
+if TYPE_CHECKING:
+    from ..sim import ClothSim
 
 __all__ = ["main", "save_state"]
 
@@ -47,6 +55,7 @@ def save_state(path: Path, sim: ClothSim) -> None:
     particles active pins hold, every particle of a patch), and
     ``stats_<field>`` (steps,) for each :class:`StepStats` field.
     """
+    from ..sim import StepStats
     fields = StepStats.__dataclass_fields__
     stats = {f"stats_{name}": np.array([getattr(s, name) for s in sim.stats])
              for name in fields}
@@ -137,6 +146,7 @@ def _self_collision_line(sim: ClothSim) -> list[str]:
 
 
 def _cmd_run(args) -> int:
+    from ..sim import ClothSim, SimulationError, load_scene
     overrides = list(args.set or [])
     if args.dt is not None:
         overrides.append(f"simulation.time_step={args.dt}")
@@ -145,6 +155,10 @@ def _cmd_run(args) -> int:
     if args.duration is not None:
         overrides.append(f"simulation.duration={args.duration}")
     scene = load_scene(args.scene, overrides)
+    live = None
+    if args.foxglove is not None:       # before the simulator: a viewer can connect while it builds
+        from ..live.run import LiveRun
+        live = LiveRun(args.foxglove_host, args.foxglove)
     sim = ClothSim(scene)
     out = Path(args.out) if args.out else Path("out") / f"{scene.name}.npz"
     png = Path(args.png) if args.png else out.with_suffix(".png")
@@ -169,11 +183,22 @@ def _cmd_run(args) -> int:
     recording = _HeadlessRecording(args, sim, overrides, start) if args.bag else None
     callback = progress if recording is None else recording.wrap(progress)
     try:
+        if live is not None:
+            callback = live.start(sim, callback)    # waits for a viewer; paces to real time
+            start = time.perf_counter()
         sim.run(scene.simulation.duration, callback=callback)
     except SimulationError as exc:
         print(f"cloth-lod: simulation stopped: {exc}", file=sys.stderr)
         save_state(out, sim)
+        if live is not None:
+            live.hold()
         return 3
+    except KeyboardInterrupt:
+        if live is None:
+            raise
+        live.close()
+        print(f"cloth-lod: stopped at t = {sim.time:.3f} s", file=sys.stderr)
+        return 130
     finally:
         if recording is not None:
             recording.close()
@@ -208,6 +233,8 @@ def _cmd_run(args) -> int:
             render_lod_history(history_png, sim.stats,
                                title=f"{scene.name}: adaptive mesh over time")
             print(f"  wrote {levels_png}\n  wrote {history_png}")
+    if live is not None:
+        live.hold()
     return 0
 
 
@@ -275,6 +302,7 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_scenes(args) -> int:
+    from ..sim.config import builtin_scene_names, load_scene
     for name in builtin_scene_names():
         scene = load_scene(name)
         print(f"{name:24s} {scene.description}")
@@ -354,6 +382,13 @@ def build_parser() -> argparse.ArgumentParser:
                      help="record the session to this rosbag2 MCAP bag directory (needs rclpy)")
     run.add_argument("--bag-rate", type=float, default=30.0,
                      help="frames recorded per simulated second (default 30)")
+    run.add_argument("--foxglove", nargs="?", type=int, const=8765, metavar="PORT",
+                     help="serve the run live to Foxglove (ws://localhost:PORT, default 8765; "
+                          "0: any free port): waits for a viewer, runs in real time, then "
+                          "shows the final state until Ctrl-C (needs the viewer extra)")
+    run.add_argument("--foxglove-host", default="127.0.0.1", metavar="HOST",
+                     help="address the live view listens on (default 127.0.0.1, this machine "
+                          "only; 0.0.0.0 to watch from another machine)")
     run.add_argument("--bag-compression", default="zstd", choices=("none", "zstd", "lz4"),
                      help="MCAP chunk compression (default zstd)")
     run.set_defaults(func=_cmd_run)
@@ -419,10 +454,13 @@ def build_parser() -> argparse.ArgumentParser:
                       help="only these topics (default: all recorded topics)")
     play.set_defaults(func=_cmd_play)
     for name, module_name, text in (
-            ("view", "view", "animate a recorded bag or a headless run of a scene (GIF)"),
+            ("view", "view", "a video (MP4, GIF or PNG contact sheet) of a recorded bag at "
+                             "its real speed, or of a headless run of a scene"),
             ("bench", "bench", "speed against error from the converged motion: integrators "
                                "x uniform levels and the adaptive mesh"),
-            ("stress", "stress", "hard-case stability suite: one table, pass/fail")):
+            ("stress", "stress", "hard-case stability suite: one table, pass/fail"),
+            ("sweep", "sweep", "many runs of a scene (grids, lists, random draws) on Dask: "
+                               "one folder per run and one table")):
         module = importlib.import_module(f"cloth_lod_ros.tools.{module_name}")
         command = sub.add_parser(name, help=text)
         module.add_arguments(command)
@@ -430,9 +468,34 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Commands that build a simulator, and so need the compiled kernels.
+SIMULATING = ("run", "compare", "bench", "stress", "replay", "view")
+
+
+def _simulates(argv: list[str]) -> bool:
+    """Whether the command line asks for a simulation (``view`` of a bag does not)."""
+    words = [a for a in argv if not a.startswith("-")]
+    if not words or words[0] not in SIMULATING or {"-h", "--help"} & set(argv):
+        return False
+    if words[0] == "view" and len(words) > 1:
+        target = Path(words[1])
+        return not (target.suffix == ".mcap" or target.is_dir())
+    return True
+
+
 def main(argv: list[str] | None = None) -> int:
+    """``cloth-lod``.  Run as a program (``argv`` None), a command that simulates
+    first prints on stderr whether the compiled kernels are compiled (a
+    machine's first start) or loaded, before the simulator's imports."""
+    if argv is None:
+        argv = sys.argv[1:]
+        if _simulates(argv):
+            from ..ros.startup import announce
+            announce("cloth-lod")
     logging.basicConfig(level=logging.WARNING, format="cloth-lod: %(levelname)s: %(message)s")
     args = build_parser().parse_args(argv)
+    from ..bag.rosbag import BagError
+    from ..sim.config import SceneError
     try:
         return args.func(args)
     except SceneError as exc:

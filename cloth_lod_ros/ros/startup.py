@@ -1,0 +1,203 @@
+"""A process's first line: are the numba kernels compiled (first start) or loaded from the cache?
+
+``cloth_lod_node`` and ``cloth-lod`` print this line before they import numpy, scipy,
+numba or rclpy, which alone take 2-3 s on a busy 2-core machine; the kernels a scene
+needs then take about a second to load from numba's cache, or the better part of a
+minute to compile on a machine's first start (``sim/warm_up.py``, which reports each
+group of kernels as it compiles).  This module therefore imports only the standard
+library, and tells a first start from a warm one the way numba does, without
+importing it: numba keeps one index file per compiled function
+(``<module>.<function>-<line>.py<XY>.nbi``) whose first pickle is the numba version
+and whose payload holds the SHA-256 of the module's source when it was compiled
+(``numba/core/caching.py``: ``IndexDataCacheFile._load_index``, ``get_source_stamp``);
+an index with another version or another source is ignored and the function
+recompiled.  The directory is the one numba's locators pick (the same file, the
+``_CacheLocator`` classes in their order): ``$NUMBA_CACHE_DIR/<dir>_<sha1 of dir>``
+when that variable is set, else ``__pycache__`` beside the module when writable (a
+checkout, a venv's site-packages after ``pip install .``), else the user's cache
+directory (``~/.cache/numba/<dir>_<sha1>`` on Linux: a read-only install).
+
+Not covered (the later lines tell): an index written on another CPU model (numba keys
+the compiled code by CPU), a kernel of a cached module that no earlier process used.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import pickle
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["KERNEL_MODULES", "FIRST_START_S", "PREFIX", "KernelCache", "cache_directory",
+           "kernel_cache", "kernel_notice", "announce", "node_main"]
+
+#: The modules of ``cloth_lod_ros.sim`` with ``cache=True`` kernels
+#: (``test/test_startup.py`` checks the list against the package).
+KERNEL_MODULES = ("kernels", "topology_kernels", "pattern_kernels", "projection_kernels",
+                  "block_ldl", "int_table", "hierarchy_kernels", "lod_kernels", "check_kernels",
+                  "round_kernels", "compact_kernels", "trailing_ldl", "self_kernels",
+                  "multigrid_kernels")
+#: s: compiling the default scene's kernels from an empty cache, measured as CPU time
+#: (numba compiles on one core) on a 2-core x86_64 machine (AMD EPYC, numba 0.68):
+#: ``warm_up.GROUPS``' estimates for ``hang_two_corners`` added up (the test checks).
+FIRST_START_S = 60
+
+#: How the line starts, whatever it says.
+PREFIX = "preparing compiled kernels: "
+SIM_DIR = Path(__file__).resolve().parent.parent / "sim"
+WARM_UP_LOGGER = "cloth_lod_ros.sim.warm_up"
+
+
+@dataclass(frozen=True)
+class KernelCache:
+    """What numba's cache holds for the simulator's kernel modules."""
+    directory: Path             # where numba reads and writes them
+    fresh: tuple                # modules with an index for this numba and this source
+    missing: tuple              # modules without one: compiled when first used
+    numba: bool = True          # numba installed and the kernels enabled
+
+    @property
+    def state(self) -> str:
+        """``"off"`` (numpy reference code), ``"cold"`` (nothing cached: a
+        first start), ``"warm"`` (every module cached) or ``"partial"``."""
+        if not self.numba:
+            return "off"
+        return "cold" if not self.fresh else "warm" if not self.missing else "partial"
+
+
+def _subpath(source_dir: Path) -> str:
+    # numba's _CacheLocator.get_suitable_cache_subpath: the directory's name and
+    # the SHA-1 of its absolute path.
+    path = os.path.abspath(source_dir)
+    return f"{os.path.basename(path)}_{hashlib.sha1(path.encode()).hexdigest()}"
+
+
+def _user_cache_dir() -> Path:
+    # numba.misc.appdirs.user_cache_dir("numba", appauthor=False)
+    if sys.platform == "darwin":
+        return Path("~/Library/Caches/numba").expanduser()
+    if sys.platform == "win32":
+        return Path(os.environ.get("LOCALAPPDATA", "~")).expanduser() / "numba" / "Cache"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path("~/.cache").expanduser()) / "numba"
+
+
+def _writable(directory: Path) -> bool:
+    existing = directory
+    while not existing.exists():
+        existing = existing.parent
+    return os.access(existing, os.W_OK | os.X_OK)
+
+
+def cache_directory(source_dir: Path = SIM_DIR) -> Path:
+    """Where numba caches the kernels of the modules in ``source_dir``."""
+    user_dir = os.environ.get("NUMBA_CACHE_DIR", "")
+    if user_dir:
+        return Path(user_dir) / _subpath(source_dir)
+    in_tree = Path(source_dir) / "__pycache__"
+    if _writable(in_tree):
+        return in_tree
+    return _user_cache_dir() / _subpath(source_dir)
+
+
+def _numba_version() -> str | None:
+    """The installed numba's version, or None: from its ``dist-info`` beside
+    the package (importlib.metadata scans every distribution: 0.1 s here)."""
+    from importlib.util import find_spec
+    spec = find_spec("numba")
+    if spec is None or not spec.origin:
+        return None
+    infos = list(Path(spec.origin).parent.parent.glob("numba-*.dist-info"))
+    if len(infos) == 1:
+        return infos[0].name[len("numba-"):-len(".dist-info")]
+    from importlib import metadata
+    try:
+        return metadata.version("numba")
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def _fresh(index: Path, version: str, digest: bytes) -> bool:
+    try:
+        with open(index, "rb") as f:
+            if pickle.load(f) != version:       # a str: numba's version
+                return False
+            return digest in f.read()           # the source's SHA-256, as numba stamps it
+    except (OSError, pickle.UnpicklingError, EOFError, ValueError):
+        return False
+
+
+def kernel_cache(source_dir: Path = SIM_DIR, modules: tuple = KERNEL_MODULES) -> KernelCache:
+    """Which of ``modules`` (in ``source_dir``) numba's cache holds for the
+    installed numba and the sources as they are now (a few ms: the index files
+    of each module are read until a fresh one is found)."""
+    directory = cache_directory(source_dir)
+    version = _numba_version()
+    if version is None or os.environ.get("CLOTH_LOD_KERNELS", "auto").lower() == "numpy":
+        return KernelCache(directory, (), tuple(modules), numba=False)
+    suffix = f".py{sys.version_info[0]}{sys.version_info[1]}{getattr(sys, 'abiflags', '')}.nbi"
+    try:
+        names = [n for n in os.listdir(directory) if n.endswith(suffix)]
+    except OSError:
+        names = []
+    fresh, missing = [], []
+    for module in modules:
+        try:
+            digest = hashlib.sha256((Path(source_dir) / f"{module}.py").read_bytes()).digest()
+        except OSError:
+            missing.append(module)
+            continue
+        indexes = (directory / n for n in names if n.startswith(f"{module}."))
+        (fresh if any(_fresh(i, version, digest) for i in indexes) else missing).append(module)
+    return KernelCache(directory, tuple(fresh), tuple(missing))
+
+
+def kernel_notice(cache: KernelCache) -> str:
+    """The first line's text for ``cache``."""
+    if cache.state == "off":
+        return (f"{PREFIX}none (numba is not installed, or CLOTH_LOD_KERNELS=numpy): the "
+                "numpy reference code runs, slower")
+    if cache.state == "cold":
+        return (f"{PREFIX}first start on this machine, compiling numba kernels (once; about "
+                f"{FIRST_START_S} s on an idle 2-core machine, longer on a busy one; cached "
+                f"in {cache.directory})...")
+    if cache.state == "partial":
+        return (f"{PREFIX}loading them from numba's cache in {cache.directory}; "
+                f"{len(cache.missing)} of {len(cache.missing) + len(cache.fresh)} kernel "
+                "modules were never compiled here and are compiled if the scene needs them "
+                f"({', '.join(cache.missing)})...")
+    return f"{PREFIX}loading them from numba's cache in {cache.directory}..."
+
+
+def announce(prog: str, log_to_stderr: bool = True) -> KernelCache:
+    """Print the first line on stderr; with ``log_to_stderr``, also send the
+    warm-up's progress lines (the logger of ``sim/warm_up.py``, INFO) to stderr,
+    prefixed ``prog: ``."""
+    cache = kernel_cache()
+    print(f"{prog}: {kernel_notice(cache)}", file=sys.stderr, flush=True)
+    if log_to_stderr:
+        import logging
+
+        class Stderr(logging.Handler):      # sys.stderr as it is when a line is logged
+            def emit(self, record):
+                print(self.format(record), file=sys.stderr, flush=True)
+
+        logger = logging.getLogger(WARM_UP_LOGGER)
+        logger.handlers = [h for h in logger.handlers if type(h).__name__ != "Stderr"]
+        handler = Stderr()
+        handler.setFormatter(logging.Formatter(f"{prog}: %(message)s"))
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+        logger.propagate = False
+    return cache
+
+
+def node_main(args=None) -> None:
+    """Entry point ``cloth_lod_node``: the first line, then the node
+    (:func:`cloth_lod_ros.ros.node.main`, whose imports take the seconds after it)."""
+    start = time.monotonic()
+    announce("cloth_lod_node", log_to_stderr=False)     # the node logs on the ROS logger
+    from .node import main
+    main(args, started=start)
