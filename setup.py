@@ -49,7 +49,7 @@ setup(
     # (forces + assembly 3-5x, factorisation 2.5-3x faster; wheels for x86_64
     # and aarch64, glibc >= 2.28).  Without either the simulator falls back to
     # its numpy reference code and PCG/multigrid.  threadpoolctl (pure Python):
-    # one BLAS thread inside a step (sim/blas_threads.py: idle threads spun
+    # one BLAS thread inside a step (sim/runtime/blas_threads.py: idle threads spun
     # on the second core, and the thread count changed results at round-off).
     # Lower bounds only (a library; the tested versions are pinned in
     # constraints.txt, scripts/refresh-constraints), except where a major

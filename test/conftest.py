@@ -19,8 +19,8 @@ if _prefix not in _paths:
 @pytest.fixture
 def kernels_restored():
     """For tests that switch between the compiled kernels and the numpy
-    reference (``kernels.use``): the switch is left as it was found."""
-    from cloth_lod_ros.sim import kernels
-    previous = kernels.enabled()
+    reference (``compiled.use``): the switch is left as it was found."""
+    from cloth_lod_ros.sim.runtime import compiled
+    previous = compiled.enabled()
     yield
-    kernels.use(previous)
+    compiled.use(previous)

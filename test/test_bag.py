@@ -287,7 +287,7 @@ def _session_ending_in_inputs(path, scene):
     from cloth_lod_ros.bag.recorder import SessionRecorder
     from cloth_lod_ros.messages.frames import FrameBuilder
     from cloth_lod_ros.sim import ClothSim
-    from cloth_lod_ros.sim.config import load_scene, scene_to_dict
+    from cloth_lod_ros.sim.scene.config import load_scene, scene_to_dict
 
     sim = ClothSim(load_scene(scene))
     recorder = SessionRecorder(path, "/", "none", grasp_names=[g.name for g in sim.grasps])

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from cloth_lod_ros.tools import cli
-from cloth_lod_ros.sim.config import load_scene
+from cloth_lod_ros.sim.scene.config import load_scene
 from cloth_lod_ros.sim import ClothSim, SimulationError, StepStats
 
 REPO = Path(__file__).resolve().parent.parent
@@ -218,7 +218,7 @@ def test_scenes_lists_builtin(capsys):
 
 def test_render_cloth_with_levels_and_pins(tmp_path):
     from cloth_lod_ros.tools.plotting import render_cloth
-    from cloth_lod_ros.sim.mesh48 import base_mesh, refine_uniform
+    from cloth_lod_ros.sim.mesh.mesh48 import base_mesh, refine_uniform
     mesh = refine_uniform(base_mesh(1.0, 1.0, 2, 2), 2)
     x = np.column_stack([mesh.uv, 0.1 * np.sin(3 * mesh.uv[:, 0])])
     levels = mesh.levels.copy()

@@ -42,7 +42,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory  # 
 from websockets.sync.client import connect  # noqa: E402
 
 from cloth_lod_ros.live import protobuf, scene as live_scene  # noqa: E402
-from cloth_lod_ros.sim.mesh48 import base_mesh, refine_uniform  # noqa: E402
+from cloth_lod_ros.sim.mesh.mesh48 import base_mesh, refine_uniform  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 # The SDK's server speaks the v1 framing under the subprotocol name

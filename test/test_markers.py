@@ -16,7 +16,7 @@ from cloth_lod_ros.messages.markers import (DELETEALL, LINE_LIST, SPHERE_LIST, T
                                    MarkerSpec, cloth_markers, level_colours,
                                    marker_array_message, serialize_marker_array,
                                    serialize_point_cloud, surface_levels, unique_edges)
-from cloth_lod_ros.sim.mesh48 import base_mesh, refine_uniform
+from cloth_lod_ros.sim.mesh.mesh48 import base_mesh, refine_uniform
 
 
 def assert_same_message(raw: bytes, reference, msg_type):
@@ -145,7 +145,7 @@ def test_point_cloud_bytes_encode_the_reference_message(height):
 def test_obstacle_markers_match_the_obstacles():
     from scipy.spatial.transform import Rotation
 
-    from cloth_lod_ros.sim.config import load_scene
+    from cloth_lod_ros.sim.scene.config import load_scene
     from cloth_lod_ros.messages.markers import CUBE, CYLINDER, SPHERE, obstacle_markers
     scene = load_scene("drop_on_sphere")           # sphere + floor plane
     disc = load_scene("drop_on_disc").obstacles[0]
@@ -157,7 +157,7 @@ def test_obstacle_markers_match_the_obstacles():
     assert table.type == CYLINDER and table.scale.z == pytest.approx(0.04)
     assert len({m.id for m in msg.markers}) == 3
     # A cylinder along x: the marker's +z must map onto the axis.
-    from cloth_lod_ros.sim.config import ObstacleConfig
+    from cloth_lod_ros.sim.scene.config import ObstacleConfig
     tilted = ObstacleConfig(type="cylinder", name="c", axis=(1.0, 0.0, 0.0))
     q = obstacle_markers([tilted], "world")[0].orientation
     np.testing.assert_allclose(Rotation.from_quat(q).apply([0, 0, 1]), [1, 0, 0], atol=1e-12)

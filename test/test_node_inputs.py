@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from cloth_lod_ros.ros.inputs import (ERROR, OK, POSE_REJECTIONS, WARN, InputQueue, PoseLimits,
                                       health, judge_pose)
-from cloth_lod_ros.sim.state import StepStats
+from cloth_lod_ros.sim.integrate.state import StepStats
 
 LIMITS = PoseLimits("world", 1.0, (-2.0, -2.0, -2.0), (2.0, 2.0, 2.0))
 NOW = 1000.0

@@ -18,10 +18,10 @@ from pathlib import Path
 import pytest
 
 from cloth_lod_ros.ros import startup
-from cloth_lod_ros.sim import kernels
+from cloth_lod_ros.sim.runtime import compiled
 
 REPO = Path(__file__).resolve().parent.parent
-needs_numba = pytest.mark.skipif(not kernels.available, reason="numba not installed")
+needs_numba = pytest.mark.skipif(not compiled.available, reason="numba not installed")
 
 
 def _env(**extra) -> dict:
@@ -54,7 +54,7 @@ def test_the_cache_directory_is_numbas(tmp_path, cache_dir):
     env = _env(NUMBA_CACHE_DIR=str(tmp_path / cache_dir) if cache_dir else "")
     code = ("from cloth_lod_ros.sim import kernels\n"
             "from cloth_lod_ros.ros import startup\n"
-            "print(kernels._membrane._cache.cache_path)\n"
+            "print(forces_kernels._membrane._cache.cache_path)\n"
             "print(startup.cache_directory())\n")
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=300)
@@ -204,7 +204,7 @@ def test_the_line_for_each_state():
 def test_the_first_start_estimate_is_the_default_scenes_plan():
     """FIRST_START_S is the default scene's groups' measured compile times added up."""
     from cloth_lod_ros.sim import warm_up
-    from cloth_lod_ros.sim.config import load_scene
+    from cloth_lod_ros.sim.scene.config import load_scene
     scene = load_scene("hang_two_corners")
     total = sum(g.compile_s for g in warm_up.GROUPS if g.needed(scene))
     assert abs(total - startup.FIRST_START_S) <= 5, total

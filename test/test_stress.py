@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from cloth_lod_ros.tools.stress import runner as stress  # the module that reads CASES
-from cloth_lod_ros.sim.config import scene_from_dict
+from cloth_lod_ros.sim.scene.config import scene_from_dict
 from cloth_lod_ros.sim import ClothSim
-from cloth_lod_ros.sim.timestepping import TimeStepper
+from cloth_lod_ros.sim.integrate.step_control import TimeStepper
 from cloth_lod_ros.tools.stress import CASES, Bounds, Case, Variant, run_case
 
 CASE = {c.name: c for c in CASES}

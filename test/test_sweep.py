@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 
 from cloth_lod_ros.sim import load_scene
-from cloth_lod_ros.sim.config import scene_to_dict
+from cloth_lod_ros.sim.scene.config import scene_to_dict
 from cloth_lod_ros.tools.sweep.spec import load_spec, plan_runs, resolve_scene
 
 pytest.importorskip("distributed", reason="the cluster extra: pip install '.[cluster]'")

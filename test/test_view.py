@@ -28,7 +28,7 @@ from cloth_lod_ros.bag.analysis import decode, read_session  # noqa: E402
 from cloth_lod_ros.bag.rosbag import BagMessage, BagReader, BagWriter  # noqa: E402
 from cloth_lod_ros.messages.markers import (cloth_markers, obstacle_markers,  # noqa: E402
                                             serialize_marker_array)
-from cloth_lod_ros.sim.config import load_scene, scene_from_dict, scene_to_dict  # noqa: E402
+from cloth_lod_ros.sim.scene.config import load_scene, scene_from_dict, scene_to_dict  # noqa: E402
 from cloth_lod_ros.tools import cli, plotting, view, view_bag  # noqa: E402
 
 SMALL = ["--size", "160x120", "--quiet"]

@@ -183,15 +183,16 @@ def reference_criterion(elements, bend_stiffness, x, v, lookahead=0.0):
     """The numpy reference's hinge measures and refine deviations with their
     tolerances: ``(measures, refine_deviation, (deviation_tol, rate_tol,
     force_tol, refine_tol))`` (see :func:`_criterion_tolerances`)."""
-    from cloth_lod_ros.sim import forces, kernels, lod
-    previous = kernels.use(False)
+    from cloth_lod_ros.sim.lod import policy as lod_policy
+    from cloth_lod_ros.sim.physics import hinges as physics_hinges
+    previous = compiled.use(False)
     try:
-        measures, refine_deviation = lod._criterion(elements, bend_stiffness, x, v, None,
-                                                    lookahead)
+        measures, refine_deviation = lod_policy._criterion(elements, bend_stiffness, x, v, None,
+                                                           lookahead)
         hv = elements.hinge_vertices
-        _, grad = forces.hinge_angles(x, hv, with_gradient=True)
+        _, grad = physics_hinges.hinge_angles(x, hv, with_gradient=True)
     finally:
-        kernels.use(previous)
+        compiled.use(previous)
     # θ̇ = Σ ∂θ/∂x_k · v_k, 12 terms: their magnitude bounds its rounding.
     rate_terms = (np.abs(grad) * np.abs(v[hv])).sum(axis=(1, 2))
     return measures, refine_deviation, _criterion_tolerances(measures, rate_terms, lookahead)
@@ -199,7 +200,7 @@ def reference_criterion(elements, bend_stiffness, x, v, lookahead=0.0):
 
 def assert_lod_decisions_agree(ours, reference, policy, hierarchy, elements, vertex_ids,
                                triangle_ids, x, v, masses, lookahead=0.0, err_msg=""):
-    """Two :class:`~cloth_lod_ros.sim.lod.LodDecision` of one state, by the
+    """Two :class:`~cloth_lod_ros.sim.lod.policy.LodDecision` of one state, by the
     compiled kernels (``ours``) and the numpy reference, agree away from the
     thresholds.
 
@@ -250,16 +251,16 @@ def assert_lod_decisions_agree(ours, reference, policy, hierarchy, elements, ver
     differ = set(ours_merge) ^ set(ref_merge)
     assert len(differ) <= allowed, f"{err_msg}: merges differ: {sorted(differ)[:10]}"
     if differ:
-        from cloth_lod_ros.sim import kernels
-        from cloth_lod_ros.sim.merge_energy import merge_energy_change
+        from cloth_lod_ros.sim.runtime import compiled
+        from cloth_lod_ros.sim.lod.merge_energy import merge_energy_change
         mids = np.array([hierarchy.midpoint[e] for e in sorted(differ)], dtype=np.int64)
-        previous = kernels.use(False)
+        previous = compiled.use(False)
         try:
             added = merge_energy_change(hierarchy, elements, vertex_ids, triangle_ids, mids, x,
                                         v, masses, policy.material, policy.gravity,
                                         hinge_angle=measures.angle)
         finally:
-            kernels.use(previous)
+            compiled.use(previous)
         bound = 0.5 * policy.material.density * added.area * cfg.max_merge_speed ** 2
         energy_near = near(added.total, bound, energy_floor(added.total, bound))
         compact = np.searchsorted(vertex_ids, mids)

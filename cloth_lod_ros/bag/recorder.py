@@ -31,7 +31,7 @@ from rclpy.serialization import serialize_message
 from std_msgs.msg import String
 
 from ..messages.frames import FrameBuilder
-from ..sim.config import scene_to_dict
+from ..sim.scene.config import scene_to_dict
 from .rosbag import BagError, BagWriter, qos_profiles_yaml
 
 __all__ = ["SessionRecorder", "OUTPUT_TYPES", "SESSION_FORMAT"]
@@ -203,7 +203,7 @@ def _benchmark(levels=(6, 8), frames: int = 30) -> None:
     import tempfile
     from pathlib import Path
 
-    from ..sim.config import load_scene
+    from ..sim.scene.config import load_scene
     from ..sim import ClothSim
     out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="cloth_bag_"))
     for level in levels:

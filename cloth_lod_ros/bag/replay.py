@@ -21,7 +21,7 @@ import numpy as np
 from ..messages.frames import grid_uv
 from ..messages.markers import TRIANGLE_LIST
 from ..sim import ClothSim
-from ..sim.config import scene_from_dict
+from ..sim.scene.config import scene_from_dict
 from .analysis import decode, read_session, topic_named
 from .rosbag import BagError, BagReader
 

@@ -28,7 +28,7 @@ from foxglove.messages import (Color, CubePrimitive, CylinderPrimitive, FrameTra
                                Vector3)
 
 from ..messages.markers import CUBE, CYLINDER, SPHERE, level_colours, obstacle_markers
-from ..sim.contact import quaternion_from_z
+from ..sim.contact.obstacles import quaternion_from_z
 from .protobuf import length_delimited, packed_fixed32, repeated_point3
 
 __all__ = ["cloth_entity", "wireframe_entity", "obstacle_entities", "grasp_entities",

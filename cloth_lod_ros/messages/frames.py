@@ -13,7 +13,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
-from ..sim.metrics import material_grid
+from ..sim.mesh.sampling import material_grid
 from .markers import (CUBE, DELETEALL, MarkerSpec, cloth_markers, obstacle_markers,
                       serialize_marker_array, serialize_point_cloud, unique_edges)
 

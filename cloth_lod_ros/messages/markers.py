@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..sim.contact import quaternion_from_z
+from ..sim.contact.obstacles import quaternion_from_z
 
 __all__ = ["MarkerSpec", "serialize_marker_array", "marker_array_message",
            "cloth_markers", "obstacle_markers", "level_colours", "unique_edges",
@@ -268,7 +268,7 @@ def cloth_markers(positions: np.ndarray, triangles: np.ndarray, levels: np.ndarr
 
 def obstacle_markers(obstacles, frame_id: str, stamp: tuple = (0, 0),
                      first_id: int = 10) -> list[MarkerSpec]:
-    """One marker per obstacle config (:class:`~cloth_lod_ros.sim.config.ObstacleConfig`;
+    """One marker per obstacle config (:class:`~cloth_lod_ros.sim.scene.config.ObstacleConfig`;
     for a running simulator, ``ClothSim.obstacle_configs()``: the configs at the
     obstacles' current poses, so the markers follow kinematic obstacles).
 
@@ -336,7 +336,7 @@ def _benchmark(levels=(6, 8), repeats: int = 10) -> None:
     """Print marker and point-cloud build times (``python -m cloth_lod_ros.messages.markers``)."""
     import time
 
-    from ..sim.mesh48 import base_mesh, refine_uniform
+    from ..sim.mesh.mesh48 import base_mesh, refine_uniform
     for level in levels:
         mesh = refine_uniform(base_mesh(1.0, 1.0, 4, 4), level)
         x = np.column_stack([mesh.uv, 0.1 * np.sin(3 * mesh.uv[:, 0])])

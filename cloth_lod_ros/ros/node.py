@@ -68,7 +68,7 @@ from visualization_msgs.msg import MarkerArray
 from ..live.server import LiveViewError
 from ..messages.frames import FrameBuilder, standard_diagnostics
 from ..sim import ClothSim, SimulationError
-from ..sim.config import SceneError, load_scene, scene_to_dict
+from ..sim.scene.config import SceneError, load_scene, scene_to_dict
 from . import parameters
 from .inputs import POSE_REJECTIONS, InputQueue, PoseLimits, health, judge_pose
 from .logs import forward_library_logs

@@ -16,8 +16,8 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 
 from ..bag.rosbag import COMPRESSIONS
 from ..sim.cloth import live_update
-from ..sim.config import SceneConfig, SceneError
-from ..sim.timestepping import effective_tolerance
+from ..sim.scene.config import SceneConfig, SceneError
+from ..sim.integrate.step_control import effective_tolerance
 
 __all__ = ["LIVE", "LIVE_CHOICES", "COLOUR_BY", "declare_parameters", "declare_scene_parameters",
            "validate", "scene_value"]

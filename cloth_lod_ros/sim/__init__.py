@@ -9,9 +9,9 @@ mcap or matplotlib (``test/test_layers.py`` enforces it).  The public API::
 """
 
 from .cloth import ClothSim
-from .config import SceneConfig, SceneError, load_scene
-from .pins import Pin
-from .state import ClothState, SimulationError, StepStats
+from .scene.config import SceneConfig, SceneError, load_scene
+from .inputs.pins import Pin
+from .integrate.state import ClothState, SimulationError, StepStats
 
 __all__ = ["ClothSim", "ClothState", "Pin", "StepStats", "SimulationError", "SceneConfig",
            "SceneError", "load_scene"]

@@ -2,17 +2,17 @@
 
 Data, state and operators are kept apart (design §9):
 
-* :class:`~cloth_lod_ros.sim.mesh48.RestMesh` + :class:`~cloth_lod_ros.sim.forces.Elements`
+* :class:`~cloth_lod_ros.sim.mesh.mesh48.RestMesh` + :class:`~cloth_lod_ros.sim.physics.elements.Elements`
   - topology and rest state;
-* :class:`~cloth_lod_ros.sim.state.ClothState` - positions, velocities and time;
-* :class:`~cloth_lod_ros.sim.pins.Pin`, :class:`~cloth_lod_ros.sim.grasps.Grasp`
+* :class:`~cloth_lod_ros.sim.integrate.state.ClothState` - positions, velocities and time;
+* :class:`~cloth_lod_ros.sim.inputs.pins.Pin`, :class:`~cloth_lod_ros.sim.inputs.grasps.Grasp`
   - inputs (material patch, target path, release; their methods in
-  :class:`~cloth_lod_ros.sim.held.HeldInputs`);
-* :class:`~cloth_lod_ros.sim.timestepping.TimeStepper` (scheme, step size,
-  contacts) over :class:`~cloth_lod_ros.sim.integrator.ImplicitStageSolver`
+  :class:`~cloth_lod_ros.sim.inputs.holding.HeldInputs`);
+* :class:`~cloth_lod_ros.sim.integrate.step_control.TimeStepper` (scheme, step size,
+  contacts) over :class:`~cloth_lod_ros.sim.integrate.implicit_stage.ImplicitStageSolver`
   (Newton on implicit stages) - ``advance(elements, masses, state, held, H)``;
-* :class:`~cloth_lod_ros.sim.hierarchy.Hierarchy48` (mechanism) and
-  :class:`~cloth_lod_ros.sim.lod.LodPolicy` (policy) - the adaptive mesh.
+* :class:`~cloth_lod_ros.sim.mesh.hierarchy.Hierarchy48` (mechanism) and
+  :class:`~cloth_lod_ros.sim.lod.policy.LodPolicy` (policy) - the adaptive mesh.
 
 Example::
 
@@ -30,25 +30,27 @@ import time as _time
 
 import numpy as np
 
-from .blas_threads import one_blas_thread
-from .config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
-from .contact import nearest_surface
-from .forces import Elements, air_power
+from .runtime.blas_threads import one_blas_thread
+from .scene.config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
+from .contact.contacts import nearest_surface
+from .physics.elements import Elements
+from .physics.air import air_power
 from .warm_up import warm_up_compiled_code
-from .topology_kernels import adopt as adopt_compiled, precompute   # compiled with numba
-from .kernels import elastic_energies   # compiled when numba is there
-from .grasps import Grasp
-from .held import HeldInputs
-from .hierarchy import Hierarchy48
-from .integrator import ImplicitStageSolver
-from .kinematics import ObstacleInputs
-from .lod import LodDecision, LodPolicy
-from .oplog import OperationLog
-from .mesh48 import MeshError, RestMesh, base_mesh, lumped_masses, refine_uniform
-from .metrics import PointLocator
-from .self_contact import SelfCollision
-from .state import ClothState, SimulationError, StepStats
-from .timestepping import TimeStepper
+from .physics.elements_kernels import adopt as adopt_compiled, precompute   # compiled with numba
+from .physics.energies_kernels import elastic_energies   # compiled when numba is there
+from .inputs.grasps import Grasp
+from .inputs.holding import HeldInputs
+from .mesh.hierarchy import Hierarchy48
+from .integrate.implicit_stage import ImplicitStageSolver
+from .inputs.obstacle_motion import ObstacleInputs
+from .lod.policy import LodDecision, LodPolicy
+from .mesh.operations import OperationLog
+from .mesh.topology import MeshError
+from .mesh.mesh48 import RestMesh, base_mesh, lumped_masses, refine_uniform
+from .mesh.sampling import PointLocator
+from .contact.self_contact import SelfCollision
+from .integrate.state import ClothState, SimulationError, StepStats
+from .integrate.step_control import TimeStepper
 
 __all__ = ["ClothSim", "live_update", "LIVE_STEPPING"]
 
@@ -98,7 +100,7 @@ _NO_EDGES = np.zeros((0, 2), dtype=np.int64)   # writeable: numba types read-onl
 class ClothSim(HeldInputs, ObstacleInputs):
     """A cloth scene ready to step.
 
-    Build from a :class:`~cloth_lod_ros.sim.config.SceneConfig` or with
+    Build from a :class:`~cloth_lod_ros.sim.scene.config.SceneConfig` or with
     :meth:`from_scene` (built-in name or YAML path, plus ``key=value``
     overrides).  Arrays returned by the properties are the live state: copy
     them if you keep them across steps.
@@ -106,9 +108,9 @@ class ClothSim(HeldInputs, ObstacleInputs):
     Each step advances one frame (``simulation.time_step``): the LOD criterion
     and its splits and merges (LOD on), the grasps' script and speed-limited
     targets, then the time stepper
-    (:class:`~cloth_lod_ros.sim.timestepping.TimeStepper`: the scheme's
+    (:class:`~cloth_lod_ros.sim.integrate.step_control.TimeStepper`: the scheme's
     implicit stages, solved by
-    :class:`~cloth_lod_ros.sim.integrator.ImplicitStageSolver`, contact
+    :class:`~cloth_lod_ros.sim.integrate.implicit_stage.ImplicitStageSolver`, contact
     re-solves and the error-controlled step size).  A step that fails is
     refused whole: its mesh operations are undone and the state is kept.
     """
@@ -382,7 +384,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
         return nearest_surface(self.obstacles, midpoints)[0] < 0.5 * self.scene.contact.thickness
 
     def apply_mesh_operations(self, ops) -> None:
-        """Apply :class:`~cloth_lod_ros.sim.hierarchy.Split`/``Merge`` values (LOD on only).
+        """Apply :class:`~cloth_lod_ros.sim.mesh.operations.Split`/``Merge`` values (LOD on only).
 
         For scripting and tests; the state is carried over as the operations
         define (face rule on split, momentum-conserving merge).

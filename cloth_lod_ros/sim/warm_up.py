@@ -4,7 +4,7 @@ A kernel's first call in a process loads it from numba's on-disk cache (tens of 
 or, the first time on a machine, compiles it (seconds).  :func:`warm_up_compiled_code`
 runs when a :class:`~cloth_lod_ros.sim.ClothSim` is built and calls the kernels the
 scene will use on tiny inputs, so that no timed step (a node's frame, a benchmark's
-step) stops for either; ``test/test_warm_up.py`` checks that a scene's run then
+step) stops for either; ``test/sim/test_warm_up.py`` checks that a scene's run then
 compiles nothing.
 
 Only the groups the scene needs are prepared (:func:`plan`): no self-collision
@@ -36,11 +36,15 @@ import time as _time
 from dataclasses import dataclass
 from typing import Callable
 
-from . import (check_kernels, compact_kernels, hierarchy_kernels, kernels, lod_kernels,
-               multigrid_kernels, pattern_kernels, projection_kernels, round_kernels,
-               self_kernels, topology_kernels)
-from .config import SceneConfig, load_scene
-from .solvers import available_methods, make_solver
+from .contact import self_broad_kernels
+from .lod import check_kernels, merge_energy_kernels, policy_kernels, round_kernels
+from .physics import elements_kernels
+from .mesh import hierarchy
+from .inputs import holding_kernels
+from .runtime import compiled
+from .solve import multigrid_kernels, pattern_kernels, projection_kernels
+from .scene.config import SceneConfig, load_scene
+from .solve.backends import available_methods, make_solver
 
 __all__ = ["KernelGroup", "GROUPS", "plan", "warm_up_compiled_code", "HEARTBEAT"]
 
@@ -52,7 +56,7 @@ HEARTBEAT = 15.0
 
 def _uniform_particles(scene: SceneConfig) -> int:
     """Particles of the cloth refined uniformly to ``cloth.level``: the most an
-    adaptive mesh can have.  A 4-8 mesh (:mod:`.mesh48`, paper §3) at level 2k
+    adaptive mesh can have.  A 4-8 mesh (:mod:`cloth_lod_ros.sim.mesh.mesh48`, paper §3) at level 2k
     is the (bu·2^k + 1) x (bv·2^k + 1) grid of its blocks' corners; level 2k + 1
     adds each of the bu·bv·4^k cells' centres."""
     bu, bv = scene.cloth.base_blocks
@@ -77,7 +81,7 @@ def _multigrid(scene: SceneConfig) -> bool:
 
 
 def _contact(scene: SceneConfig) -> bool:
-    """Contact rounds on one block factorisation (:mod:`.trailing_ldl`): a
+    """Contact rounds on one block factorisation (:mod:`cloth_lod_ros.sim.solve.trailing_ldl`): a
     direct block solver and something to touch."""
     return _block_ldl(scene) and bool(scene.obstacles or scene.self_collision.enabled)
 
@@ -95,7 +99,7 @@ def _tiny_step(scene: SceneConfig) -> None:
 
 
 def _trailing(scene: SceneConfig) -> None:
-    from . import trailing_ldl          # imports numba, like block_ldl
+    from .solve import trailing_ldl          # imports numba, like block_ldl
     trailing_ldl.warm_up()
 
 
@@ -126,20 +130,21 @@ def _lod(scene):
 #: whatever a whole step adds).
 GROUPS = (
     KernelGroup("topology", "mesh topology kernels", 5.5, _always,
-                lambda s: topology_kernels.warm_up()),
+                lambda s: elements_kernels.warm_up()),
     KernelGroup("pattern", "sparsity pattern kernels", 5.0, _always,
                 lambda s: pattern_kernels.warm_up()),
     KernelGroup("projection", "constraint projection kernels", 3.5, _always,
                 lambda s: projection_kernels.warm_up()),
     KernelGroup("hierarchy", "LOD hierarchy kernels (split, merge)", 16.0, _lod,
-                lambda s: hierarchy_kernels.warm_up()),
-    KernelGroup("lod", "LOD criterion kernels", 12.0, _lod, lambda s: lod_kernels.warm_up()),
+                lambda s: hierarchy.warm_up()),
+    KernelGroup("lod", "LOD criterion kernels", 12.0, _lod,
+                lambda s: (policy_kernels.warm_up(), merge_energy_kernels.warm_up())),
     KernelGroup("check", "LOD check kernels", 4.0, _lod, lambda s: check_kernels.warm_up()),
     KernelGroup("round", "LOD round kernels", 5.0, _lod, lambda s: round_kernels.warm_up()),
     KernelGroup("compact", "compact mesh and held patch kernels", 1.5,
-                lambda s: s.lod.enabled or bool(s.grasps), lambda s: compact_kernels.warm_up()),
+                lambda s: s.lod.enabled or bool(s.grasps), lambda s: holding_kernels.warm_up()),
     KernelGroup("self", "self-collision kernels", 26.0, lambda s: s.self_collision.enabled,
-                lambda s: self_kernels.warm_up()),
+                lambda s: self_broad_kernels.warm_up()),
     KernelGroup("multigrid", "multigrid kernels", 5.5, _multigrid,
                 lambda s: multigrid_kernels.warm_up()),
     KernelGroup("trailing", "contact round (trailing LDL) kernels", 10.5, _contact, _trailing),
@@ -251,7 +256,7 @@ def warm_up_compiled_code(scene: SceneConfig | None = None) -> float:
     them when it is built.  A group that fails is logged and skipped: its
     kernels then compile at first use, which only costs time.
     """
-    if not kernels.enabled() or getattr(_active, "on", False):
+    if not compiled.enabled() or getattr(_active, "on", False):
         return 0.0
     with _lock:
         work, keys = [], set()

@@ -302,7 +302,7 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_scenes(args) -> int:
-    from ..sim.config import builtin_scene_names, load_scene
+    from ..sim.scene.config import builtin_scene_names, load_scene
     for name in builtin_scene_names():
         scene = load_scene(name)
         print(f"{name:24s} {scene.description}")
@@ -495,7 +495,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="cloth-lod: %(levelname)s: %(message)s")
     args = build_parser().parse_args(argv)
     from ..bag.rosbag import BagError
-    from ..sim.config import SceneError
+    from ..sim.scene.config import SceneError
     try:
         return args.func(args)
     except SceneError as exc:

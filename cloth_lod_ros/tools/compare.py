@@ -25,8 +25,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..sim.config import load_scene
-from ..sim.metrics import material_grid, rms_and_max_distance
+from ..sim.scene.config import load_scene
+from ..sim.mesh.sampling import material_grid, rms_and_max_distance
 from ..sim import ClothSim
 from .reference import MODES, SAME_STEP_LABEL, ConvergedReference, self_error
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..sim.contact import make_obstacle, quaternion_matrix
+from ..sim.contact.obstacles import make_obstacle, quaternion_matrix
 
 __all__ = ["VIEWS", "LIGHT", "Z_ORDER", "view_box", "cube_box", "setup_axes",
            "draw_obstacles", "ObstacleArtists", "obstacle_extent", "hidden_points",
@@ -67,7 +67,7 @@ def view_box(point_sets, obstacles=(), margin: float = 0.3,
     Args:
         point_sets: iterable of ``(n, 3)`` arrays (e.g. each frame's positions,
             or only their bounding corners).
-        obstacles: :class:`~cloth_lod_ros.sim.config.ObstacleConfig` sequence.
+        obstacles: :class:`~cloth_lod_ros.sim.scene.config.ObstacleConfig` sequence.
         extents: iterable of ``(k, 3)`` points bounding obstacles already
             (e.g. :func:`obstacle_extent` over a moving obstacle's poses),
             clipped as the obstacles are.
@@ -273,7 +273,7 @@ def _depth_ranks(obstacles, towards: np.ndarray) -> dict:
 
 
 def draw_obstacles(ax, obstacles, box, view: str = "3d") -> list:
-    """Draw ``obstacles`` (:class:`~cloth_lod_ros.sim.config.ObstacleConfig`) on a
+    """Draw ``obstacles`` (:class:`~cloth_lod_ros.sim.scene.config.ObstacleConfig`) on a
     3-D axes set up by :func:`setup_axes`.
 
     Planes are a ground grid over the axes box (drawn first when the camera sees

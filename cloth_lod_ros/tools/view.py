@@ -100,7 +100,7 @@ def animation_from_scene(scene, fps: float, speed: float = 1.0, progress=None) -
     simulated seconds from t = 0 (at most one per step).
 
     Args:
-        scene: a validated :class:`~cloth_lod_ros.sim.config.SceneConfig`.
+        scene: a validated :class:`~cloth_lod_ros.sim.scene.config.SceneConfig`.
         progress: optional ``callable(str)`` for a progress line every 10 %.
 
     A :class:`~cloth_lod_ros.sim.SimulationError` ends the frames early
@@ -457,7 +457,7 @@ def _evenly(count: int, span_ns: int):
 def run(args) -> int:
     """``cloth-lod view``: 0 on success, 3 if the simulation stopped early (the
     frames before are written); errors raise (the CLI turns them into exit 2)."""
-    from ..sim import config
+    from ..sim.scene import config
     for option, value in (("--fps", args.fps), ("--speed", args.speed)):
         if not value > 0:
             raise ValueError(f"{option} must be > 0, got {value}")

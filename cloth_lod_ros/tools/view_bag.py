@@ -44,7 +44,7 @@ import numpy as np
 from ..bag.rosbag import BagError, BagReader
 from ..messages.markers import (ADD, CUBE, CYLINDER, SPHERE, SPHERE_LIST, TRIANGLE_LIST,
                                 surface_levels)
-from ..sim.contact import quaternion_matrix
+from ..sim.contact.obstacles import quaternion_matrix
 from .plotting import ClothFrame
 from .scene3d import obstacle_extent
 
@@ -302,7 +302,7 @@ def open_bag(reader: BagReader) -> BagSource:
         BagError: no session, an unreadable scene, or no recorded markers.
     """
     from ..bag.analysis import topic_named
-    from ..sim.config import SceneError, scene_from_dict
+    from ..sim.scene.config import SceneError, scene_from_dict
     path = reader.path
     session_topic = topic_named(reader, "cloth/session")
     session = None

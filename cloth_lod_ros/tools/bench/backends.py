@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...sim.metrics import material_grid
+from ...sim.mesh.sampling import material_grid
 
 __all__ = ["CASES", "BACKENDS", "run_backends"]
 
@@ -45,7 +45,7 @@ def run_backends(out: Path, repeats: int = 3, quick: bool = False, cpu: int | No
                  backends=BACKENDS, progress=print) -> dict:
     """Run every case with every backend; return and write the results."""
     from .runner import _run_worker, write_suite    # pinned single-thread workers
-    from ...sim.solvers import available_methods
+    from ...sim.solve.backends import available_methods
     backends = [b for b in backends if b in available_methods()]    # optional ones
     cases = QUICK_CASES if quick else CASES
     cpu = sorted(os.sched_getaffinity(0))[-1] if cpu is None else cpu

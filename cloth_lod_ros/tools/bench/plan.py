@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from ...sim.timestepping import SCHEMES
+from ...sim.integrate.schemes import SCHEMES
 from ..reference import ConvergedReference
 
 __all__ = ["BenchError", "FULL", "QUICK", "REFERENCE_KINDS", "parse_scheme", "family_label",

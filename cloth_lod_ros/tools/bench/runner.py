@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...sim.timestepping import effective_tolerance
+from ...sim.integrate.step_control import effective_tolerance
 from ..reference import MODES, SAME_STEP_LABEL, ConvergedReference
 from .plan import (FULL, QUICK, REFERENCE_KINDS, BenchError, configurations, family_label,
                    parse_scheme)
@@ -362,8 +362,8 @@ def run(args) -> int:
 
     Returns 0 on success, 2 for bad arguments or scenes, 3 if a run failed.
     """
-    from ...sim.config import SceneError, find_scene_file, load_scene
-    from ...sim.metrics import material_grid
+    from ...sim.scene.config import SceneError, find_scene_file, load_scene
+    from ...sim.mesh.sampling import material_grid
 
     args._out_given = args.out is not None
     if args.out is None:

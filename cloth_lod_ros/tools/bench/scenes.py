@@ -85,7 +85,7 @@ def run_scenes(out: Path, repeats: int = 3, quick: bool = False, cpu: int | None
                cases=None, progress=print) -> dict:
     """Run every case ``repeats`` times in rounds; write and return the table."""
     from .runner import _run_worker, write_suite    # pinned single-thread workers
-    from ...sim.solvers import available_methods
+    from ...sim.solve.backends import available_methods
     cases = cases or (QUICK_SCENE_CASES if quick else SCENE_CASES)
     if "cholmod" not in available_methods():
         cases = [c for c in cases if CHOLMOD not in c.overrides]

@@ -35,7 +35,7 @@ def _worker(spec: dict) -> dict:
     ``ke_per_mass`` at each sample (J/kg), and ``cost`` (wall/CPU seconds and
     work counters over the timed window).
     """
-    from ...sim.config import load_scene
+    from ...sim.scene.config import load_scene
     from ...sim import ClothSim
 
     setup_start = _time.perf_counter()

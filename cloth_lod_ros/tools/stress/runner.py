@@ -54,8 +54,8 @@ from typing import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ...sim.config import parse_override, load_scene
-from ...sim.mesh48 import MeshError
+from ...sim.scene.config import parse_override, load_scene
+from ...sim.mesh.topology import MeshError
 from ...sim import ClothSim, SimulationError
 
 from .cases import CASES, EPS, Bounds, Case, Event, _gravity
@@ -135,7 +135,7 @@ class RunResult:
 
 
 def build_scene(case: Case, lod: bool, quick: bool, extra: list[str] | None = None):
-    """The :class:`~cloth_lod_ros.sim.config.SceneConfig` of ``case`` (LOD on/off,
+    """The :class:`~cloth_lod_ros.sim.scene.config.SceneConfig` of ``case`` (LOD on/off,
     flavour), with ``extra`` ``key=value`` overrides (e.g. a solver backend) on top."""
     variant = case.quick if quick else case.full
     overrides = dict(case.overrides)

@@ -2,7 +2,7 @@
 
 A sweep file (YAML) names a base scene and the scene fields to vary; every
 field is a ``cloth-lod run --set`` key (a dotted path, applied by the scene
-loader's own :func:`~cloth_lod_ros.sim.config.apply_overrides`), or an item of
+loader's own :func:`~cloth_lod_ros.sim.scene.config.apply_overrides`), or an item of
 a list section addressed by index or name, ``grasps[left].waypoints``,
 ``obstacles[0].centre``, ``pins[top_left].uv`` (the whole list, with that one
 field changed, is set through the same function).  ``docs/sweeps.md`` is the
@@ -31,7 +31,7 @@ the random draws; ``combine: product`` runs every combination of one of each
 
 Each run's scene is resolved here, on the machine that starts the sweep: the
 run carries the whole validated scene as a plain mapping
-(:func:`~cloth_lod_ros.sim.config.scene_to_dict`), so workers need no scene
+(:func:`~cloth_lod_ros.sim.scene.config.scene_to_dict`), so workers need no scene
 files, and the table row that holds it reproduces the run.  A run whose
 parameters the scene loader refuses is kept, with the loader's message, and
 recorded as failed without being sent anywhere.
@@ -59,8 +59,8 @@ from typing import Any
 import numpy as np
 
 from ...sim import SceneError, load_scene
-from ...sim.config import (apply_overrides, find_scene_file, parse_override, scene_from_dict,
-                           scene_to_dict)
+from ...sim.scene.config import (apply_overrides, find_scene_file, parse_override, scene_from_dict,
+                                 scene_to_dict)
 from ..reference import ConvergedReference
 
 __all__ = ["SweepError", "SweepSpec", "PlannedRun", "load_spec", "plan_runs", "run_id_of",

@@ -184,8 +184,8 @@ def run_one(task: dict) -> dict:
 
 def _simulate(task: dict, out: dict, tmp: Path) -> None:
     from ...sim import ClothSim, SimulationError
-    from ...sim.config import scene_from_dict
-    from ...sim.metrics import material_grid
+    from ...sim.scene.config import scene_from_dict
+    from ...sim.mesh.sampling import material_grid
     if task.get("version") is not None and package_version() != task["version"]:
         raise RuntimeError(f"this worker imports cloth_lod_ros {package_version()}, the "
                            f"sweep was started with {task['version']}")

@@ -1,0 +1,157 @@
+"""Integration schemes made of implicit stages (design §3).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..physics.elements import Elements
+from .implicit_stage import ImplicitStageSolver, SolveReport
+from .state import ClothState
+
+__all__ = ["SCHEMES", "Scheme", "BaraffWitkin", "BackwardEuler", "Sdirk2"]
+
+
+@dataclass
+class SchemeStep:
+    """One step of a scheme: end positions/velocities ``(n, 3)``, the contacts
+    that held in its last stage, its report and the embedded error estimate
+    ``(n, 3)`` (m)."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    contacts: object
+    report: SolveReport
+    error: np.ndarray
+
+
+def _stage_distance(contacts, x_start: np.ndarray, x_hat: np.ndarray, elapsed: float,
+                    max_speed: float):
+    """The normal distance (m, ``(k,)``) each contact's particle must cover in
+    a stage so that it ends on the offset surface, from the stage's base
+    positions ``x_hat``: ``d̂ − w E − e``, with ``d̂`` the distance measured at
+    ``x_start`` moved to ``x_hat`` along the normal (tangent plane), ``w E``
+    how far the surface moves along its normal in the ``elapsed`` s ``E``
+    from the step's start to the stage's end (``w = u·n``, ``u`` the contact's
+    surface velocity; 0 on a static obstacle) and ``e`` the allowed end
+    distance: 0, or for a particle that started inside (``d < 0``) as far in
+    as pushing out at ``max_speed`` m/s (relative to the surface) for ``E``
+    leaves it.  (The base of a later stage may lie inside although the
+    particle did not start there: that is the scheme's extrapolation, not a
+    penetration to push out slowly.)  Rows against a second obstacle
+    (``contacts.second``) get a second column ``(k, 2)``: the same for it."""
+    if contacts is None or not len(contacts):
+        return None
+    first = _one_stage_distance(contacts, x_start, x_hat, elapsed, max_speed)
+    if not contacts.doubled.any():
+        return first
+    return np.column_stack([first, _one_stage_distance(contacts.second, x_start, x_hat,
+                                                       elapsed, max_speed)])
+
+
+def _one_stage_distance(contacts, x_start, x_hat, elapsed, max_speed):
+    d = contacts.distance
+    shift = x_hat[contacts.indices] - x_start[contacts.indices]
+    d_hat = d + np.einsum("kd,kd->k", shift, contacts.normals)
+    allowed = np.where(d < 0.0, np.minimum(d + max_speed * elapsed, 0.0), 0.0)
+    surface_vn = contacts.normal_speed()
+    if surface_vn is not None:
+        d_hat = d_hat - surface_vn * elapsed
+    return d_hat - allowed
+
+
+class Scheme:
+    """A one-step integration scheme built from implicit stages.
+
+    Attributes:
+        name: the ``simulation.integrator`` value.  order: global order in h.
+        newton_iterations, newton_tolerance: budget and stopping test of each
+            stage's Newton iterations (see
+            :meth:`~cloth_lod_ros.sim.integrate.implicit_stage.ImplicitStageSolver.solve_stage`).
+    """
+
+    name = ""
+    order = 1
+
+    def __init__(self, newton_iterations: int = 1, newton_tolerance: float = 0.0,
+                 max_correction_speed: float = 0.5):
+        self.newton_iterations = newton_iterations
+        self.newton_tolerance = newton_tolerance
+        self.max_correction_speed = max_correction_speed
+
+    def _stage(self, solver, elements, masses, x_start, x_hat, v_hat, gh, elapsed, held,
+               predictor, contacts, slot, linearize_at_start=False, iterations=None):
+        """One stage ending ``elapsed`` s after the step's start."""
+        return solver.solve_stage(
+            elements, masses, x_hat, v_hat, gh, held, predictor, contacts,
+            _stage_distance(contacts, x_start, x_hat, elapsed, self.max_correction_speed),
+            iterations or self.newton_iterations, self.newton_tolerance,
+            linearize_at_start, slot)
+
+    def step(self, solver: ImplicitStageSolver, elements: Elements, masses: np.ndarray,
+             state: ClothState, start_targets: np.ndarray,
+             held: tuple[np.ndarray, np.ndarray], h: float, contacts) -> SchemeStep:
+        """Advance ``state`` by ``h`` s; held particles go from ``start_targets``
+        ``(k, 3)`` (their positions at the start, m) to ``held[1]``."""
+        raise NotImplementedError
+
+
+class BackwardEuler(Scheme):
+    """Backward Euler, Newton iterations from the predictor ``x_n + h v_n``."""
+
+    name = "backward_euler"
+    linearize_at_start = False
+
+    def step(self, solver, elements, masses, state, start_targets, held, h, contacts):
+        x, v = state.positions, state.velocities
+        iterations = 1 if self.linearize_at_start else None
+        stage = self._stage(solver, elements, masses, x, x, v, h, h, held, v, contacts, 0,
+                            self.linearize_at_start, iterations)
+        # Embedded estimate: backward Euler − trapezoidal rule in x.
+        error = 0.5 * h * (stage.velocities - v)
+        return SchemeStep(stage.positions, stage.velocities, stage.contacts, stage.report,
+                          error)
+
+
+class BaraffWitkin(BackwardEuler):
+    """The paper's step: backward Euler linearised at ``x_n``, one solve (BW eq. 15)."""
+
+    name = "baraff_witkin"
+    linearize_at_start = True
+
+
+class Sdirk2(Scheme):
+    """Alexander's L-stable two-stage SDIRK, ``γ = 1 − 1/√2`` (module docstring)."""
+
+    name = "sdirk2"
+    order = 2
+    gamma = 1.0 - 1.0 / math.sqrt(2.0)
+
+    def step(self, solver, elements, masses, state, start_targets, held, h, contacts):
+        x, v = state.positions, state.velocities
+        g = self.gamma
+        indices, end_targets = held
+        first_targets = start_targets + g * (end_targets - start_targets)
+        one = self._stage(solver, elements, masses, x, x, v, g * h, g * h,
+                          (indices, first_targets), v, contacts, 0)
+        v1 = one.velocities
+        x_hat = x + (1.0 - g) * h * v1
+        # M⁻¹f(Y₁) = (V₁ − v_n)/(γh) less the contact impulses: an impact is
+        # not a smooth force, and extrapolating it by (1 − γ)/γ = 2.4 would
+        # throw the particle off the surface in stage 2.
+        change = v1 - v
+        if one.contact_impulse is not None:
+            change = change - one.contact_impulse / masses[:, None]
+        v_hat = v + ((1.0 - g) / g) * change
+        two = self._stage(solver, elements, masses, x, x_hat, v_hat, g * h, h, held, v1,
+                          contacts, 1)
+        two.report.add(one.report)
+        # Embedded first-order solution x_n + h V₁.
+        error = g * h * (two.velocities - v1)
+        return SchemeStep(two.positions, two.velocities, two.contacts, two.report, error)
+
+
+SCHEMES = {cls.name: cls for cls in (BaraffWitkin, BackwardEuler, Sdirk2)}
