@@ -37,12 +37,13 @@ def test_the_kernel_modules_are_those_with_cached_kernels():
     import cloth_lod_ros.sim as sim_package
     from numba.core.registry import CPUDispatcher
     found = set()
-    for info in pkgutil.iter_modules(sim_package.__path__):
-        module = importlib.import_module(f"cloth_lod_ros.sim.{info.name}")
+    for info in pkgutil.walk_packages(sim_package.__path__, sim_package.__name__ + "."):
+        module = importlib.import_module(info.name)
         for value in vars(module).values():
             if isinstance(value, CPUDispatcher) and value._cache.__class__.__name__ != \
                     "NullCache":
-                found.add(value.py_func.__module__.rsplit(".", 1)[-1])
+                found.add(value.py_func.__module__[len("cloth_lod_ros.sim."):]
+                          .replace(".", "/"))
     assert found == set(startup.KERNEL_MODULES)
 
 
@@ -52,10 +53,10 @@ def test_the_cache_directory_is_numbas(tmp_path, cache_dir):
     """numba's own locator (``_Cache.cache_path``) for a kernel, with and
     without NUMBA_CACHE_DIR, in a fresh process (numba reads it at import)."""
     env = _env(NUMBA_CACHE_DIR=str(tmp_path / cache_dir) if cache_dir else "")
-    code = ("from cloth_lod_ros.sim import kernels\n"
+    code = ("from cloth_lod_ros.sim.physics import forces_kernels\n"
             "from cloth_lod_ros.ros import startup\n"
             "print(forces_kernels._membrane._cache.cache_path)\n"
-            "print(startup.cache_directory())\n")
+            "print(startup.cache_directory(startup.SIM_DIR / 'physics'))\n")
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
@@ -175,7 +176,7 @@ def test_a_warm_start_says_it_loads_and_when_it_is_ready(tmp_path):
     this checkout): the CLI's first line says it loads them, a later line says
     they were loaded, and no line says compiling."""
     from cloth_lod_ros.sim import warm_up
-    warm_up.warm_up_compiled_code()                 # every group, in every variant
+    warm_up.warm_up_compiled_code(ClothSim)         # every group, in every variant
     assert startup.kernel_cache().state == "warm"
     proc = subprocess.run([sys.executable, "-m", "cloth_lod_ros.tools.cli", *RUN,
                            "--out", str(tmp_path / "s.npz")], cwd=tmp_path, env=_env(),

@@ -34,12 +34,16 @@ from pathlib import Path
 __all__ = ["KERNEL_MODULES", "FIRST_START_S", "PREFIX", "KernelCache", "cache_directory",
            "kernel_cache", "kernel_notice", "announce", "node_main"]
 
-#: The modules of ``cloth_lod_ros.sim`` with ``cache=True`` kernels
-#: (``test/test_startup.py`` checks the list against the package).
-KERNEL_MODULES = ("kernels", "topology_kernels", "pattern_kernels", "projection_kernels",
-                  "block_ldl", "int_table", "hierarchy_kernels", "lod_kernels", "check_kernels",
-                  "round_kernels", "compact_kernels", "trailing_ldl", "self_kernels",
-                  "multigrid_kernels")
+#: The modules of ``cloth_lod_ros.sim`` with ``cache=True`` kernels, as paths
+#: relative to ``sim/`` without ``.py`` (``test/test_startup.py`` checks the
+#: list against the package).  numba caches each beside its own part's folder.
+KERNEL_MODULES = ("contact/self_broad_kernels", "inputs/holding_kernels",
+                  "lod/check_kernels", "lod/merge_energy_kernels", "lod/policy_kernels",
+                  "lod/round_kernels", "mesh/compact_kernels", "mesh/hierarchy_kernels",
+                  "mesh/int_table", "mesh/topology_kernels", "physics/elements_kernels",
+                  "physics/energies_kernels", "physics/forces_kernels",
+                  "physics/hinges_kernels", "solve/block_ldl", "solve/multigrid_kernels",
+                  "solve/pattern_kernels", "solve/projection_kernels", "solve/trailing_ldl")
 #: s: compiling the default scene's kernels from an empty cache, measured as CPU time
 #: (numba compiles on one core) on a 2-core x86_64 machine (AMD EPYC, numba 0.68):
 #: ``warm_up.GROUPS``' estimates for ``hang_two_corners`` added up (the test checks).
@@ -102,6 +106,15 @@ def cache_directory(source_dir: Path = SIM_DIR) -> Path:
     return _user_cache_dir() / _subpath(source_dir)
 
 
+def _shown_directory(source_dir: Path) -> Path:
+    """Where the kernels' caches are, for the first line: numba keeps one per
+    folder of kernel modules, so beside the package ``sim/*/__pycache__``."""
+    folder = cache_directory(Path(source_dir) / "mesh")
+    if folder.name == "__pycache__":
+        return Path(source_dir) / "*" / "__pycache__"
+    return folder.parent
+
+
 def _numba_version() -> str | None:
     """The installed numba's version, or None: from its ``dist-info`` beside
     the package (importlib.metadata scans every distribution: 0.1 s here)."""
@@ -133,23 +146,28 @@ def kernel_cache(source_dir: Path = SIM_DIR, modules: tuple = KERNEL_MODULES) ->
     """Which of ``modules`` (in ``source_dir``) numba's cache holds for the
     installed numba and the sources as they are now (a few ms: the index files
     of each module are read until a fresh one is found)."""
-    directory = cache_directory(source_dir)
+    directory = _shown_directory(source_dir)
     version = _numba_version()
     if version is None or os.environ.get("CLOTH_LOD_KERNELS", "auto").lower() == "numpy":
         return KernelCache(directory, (), tuple(modules), numba=False)
     suffix = f".py{sys.version_info[0]}{sys.version_info[1]}{getattr(sys, 'abiflags', '')}.nbi"
-    try:
-        names = [n for n in os.listdir(directory) if n.endswith(suffix)]
-    except OSError:
-        names = []
+    listed = {}                 # cache directory -> its index files
     fresh, missing = [], []
     for module in modules:
+        source = Path(source_dir) / f"{module}.py"
         try:
-            digest = hashlib.sha256((Path(source_dir) / f"{module}.py").read_bytes()).digest()
+            digest = hashlib.sha256(source.read_bytes()).digest()
         except OSError:
             missing.append(module)
             continue
-        indexes = (directory / n for n in names if n.startswith(f"{module}."))
+        folder = cache_directory(source.parent)
+        if folder not in listed:
+            try:
+                listed[folder] = [n for n in os.listdir(folder) if n.endswith(suffix)]
+            except OSError:
+                listed[folder] = []
+        name = source.stem
+        indexes = (folder / n for n in listed[folder] if n.startswith(f"{name}."))
         (fresh if any(_fresh(i, version, digest) for i in indexes) else missing).append(module)
     return KernelCache(directory, tuple(fresh), tuple(missing))
 

@@ -2,8 +2,8 @@
 
 Data, state and operators are kept apart (design §9):
 
-* :class:`~cloth_lod_ros.sim.mesh.mesh48.RestMesh` + :class:`~cloth_lod_ros.sim.physics.elements.Elements`
-  - topology and rest state;
+* :class:`~cloth_lod_ros.sim.mesh.mesh48.RestMesh` +
+  :class:`~cloth_lod_ros.sim.physics.elements.Elements` - topology and rest state;
 * :class:`~cloth_lod_ros.sim.integrate.state.ClothState` - positions, velocities and time;
 * :class:`~cloth_lod_ros.sim.inputs.pins.Pin`, :class:`~cloth_lod_ros.sim.inputs.grasps.Grasp`
   - inputs (material patch, target path, release; their methods in
@@ -127,7 +127,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
         """
         if keep_stats is not None and keep_stats < 1:
             raise ValueError(f"keep_stats must be at least 1, got {keep_stats}")
-        warm_up_compiled_code(scene)    # the kernels this scene needs, before any is called
+        warm_up_compiled_code(ClothSim, scene)   # the kernels this scene needs, before any is called
         self.scene = scene
         cloth = scene.cloth
         base = base_mesh(cloth.width, cloth.height, *cloth.base_blocks)

@@ -86,11 +86,10 @@ def _contact(scene: SceneConfig) -> bool:
     return _block_ldl(scene) and bool(scene.obstacles or scene.self_collision.enabled)
 
 
-def _tiny_step(scene: SceneConfig) -> None:
+def _tiny_step(scene: SceneConfig, simulator: type) -> None:
     """Two steps of a level-2 cloth with the scene's solver and features (LOD,
     self-collision): what a step calls that no group's kernels cover."""
-    from .cloth import ClothSim
-    tiny = ClothSim(load_scene("hang_two_corners", [
+    tiny = simulator(load_scene("hang_two_corners", [
         "cloth.level=2", f"lod.enabled={str(scene.lod.enabled).lower()}",
         f"self_collision.enabled={str(scene.self_collision.enabled).lower()}",
         f"solver.method={scene.solver.method}"]))
@@ -98,7 +97,7 @@ def _tiny_step(scene: SceneConfig) -> None:
     tiny.step()
 
 
-def _trailing(scene: SceneConfig) -> None:
+def _trailing(scene: SceneConfig, simulator: type) -> None:
     from .solve import trailing_ldl          # imports numba, like block_ldl
     trailing_ldl.warm_up()
 
@@ -110,7 +109,8 @@ class KernelGroup:
     label: str                                  # for the log lines
     compile_s: float                            # s of CPU, measured (module docstring)
     needed: Callable[[SceneConfig], bool]
-    run: Callable[[SceneConfig], None]          # calls the kernels on tiny inputs
+    run: Callable[[SceneConfig, type], None]    # calls the kernels on tiny inputs
+                                                # (the scene, the ClothSim class)
     variant: Callable[[SceneConfig], tuple] = lambda scene: ()   # what ``run`` depends on
 
     def key(self, scene: SceneConfig) -> tuple:
@@ -130,23 +130,23 @@ def _lod(scene):
 #: whatever a whole step adds).
 GROUPS = (
     KernelGroup("topology", "mesh topology kernels", 5.5, _always,
-                lambda s: elements_kernels.warm_up()),
+                lambda s, sim: elements_kernels.warm_up()),
     KernelGroup("pattern", "sparsity pattern kernels", 5.0, _always,
-                lambda s: pattern_kernels.warm_up()),
+                lambda s, sim: pattern_kernels.warm_up()),
     KernelGroup("projection", "constraint projection kernels", 3.5, _always,
-                lambda s: projection_kernels.warm_up()),
+                lambda s, sim: projection_kernels.warm_up()),
     KernelGroup("hierarchy", "LOD hierarchy kernels (split, merge)", 16.0, _lod,
-                lambda s: hierarchy.warm_up()),
+                lambda s, sim: hierarchy.warm_up()),
     KernelGroup("lod", "LOD criterion kernels", 12.0, _lod,
-                lambda s: (policy_kernels.warm_up(), merge_energy_kernels.warm_up())),
-    KernelGroup("check", "LOD check kernels", 4.0, _lod, lambda s: check_kernels.warm_up()),
-    KernelGroup("round", "LOD round kernels", 5.0, _lod, lambda s: round_kernels.warm_up()),
+                lambda s, sim: (policy_kernels.warm_up(), merge_energy_kernels.warm_up())),
+    KernelGroup("check", "LOD check kernels", 4.0, _lod, lambda s, sim: check_kernels.warm_up()),
+    KernelGroup("round", "LOD round kernels", 5.0, _lod, lambda s, sim: round_kernels.warm_up()),
     KernelGroup("compact", "compact mesh and held patch kernels", 1.5,
-                lambda s: s.lod.enabled or bool(s.grasps), lambda s: holding_kernels.warm_up()),
+                lambda s: s.lod.enabled or bool(s.grasps), lambda s, sim: holding_kernels.warm_up()),
     KernelGroup("self", "self-collision kernels", 26.0, lambda s: s.self_collision.enabled,
-                lambda s: self_broad_kernels.warm_up()),
+                lambda s, sim: self_broad_kernels.warm_up()),
     KernelGroup("multigrid", "multigrid kernels", 5.5, _multigrid,
-                lambda s: multigrid_kernels.warm_up()),
+                lambda s, sim: multigrid_kernels.warm_up()),
     KernelGroup("trailing", "contact round (trailing LDL) kernels", 10.5, _contact, _trailing),
     KernelGroup("step", "step kernels (forces, assembly, linear solver)", 9.5, _always,
                 _tiny_step, variant=lambda s: (s.lod.enabled, s.self_collision.enabled,
@@ -242,7 +242,7 @@ def _heartbeat(stop: threading.Event) -> None:
                      _time.perf_counter() - _compiles.started)
 
 
-def warm_up_compiled_code(scene: SceneConfig | None = None) -> float:
+def warm_up_compiled_code(simulator: type, scene: SceneConfig | None = None) -> float:
     """Prepare the kernels ``scene`` needs (None: every group, in every variant)
     that this process has not prepared yet; seconds spent.  Nothing without numba.
 
@@ -255,6 +255,13 @@ def warm_up_compiled_code(scene: SceneConfig | None = None) -> float:
     the GIL through numba's typing.  A later simulator that needs them prepares
     them when it is built.  A group that fails is logged and skipped: its
     kernels then compile at first use, which only costs time.
+
+    Args:
+        simulator: :class:`~cloth_lod_ros.sim.cloth.ClothSim`, the class of the
+            tiny cloth the ``step`` group steps (the facade calls this when
+            built and hands itself in: it imports this module, not the other
+            way round).
+        scene: the scene to prepare for.
     """
     if not compiled.enabled() or getattr(_active, "on", False):
         return 0.0
@@ -280,7 +287,7 @@ def warm_up_compiled_code(scene: SceneConfig | None = None) -> float:
             for index, (_, group, s) in enumerate(work, 1):
                 _compiles.group = (index, len(work), group)
                 try:
-                    group.run(s)
+                    group.run(s, simulator)
                 except Exception as exc:    # never a reason to refuse the scene
                     log.warning("%s not prepared (%s); they compile at first use",
                                 group.label, exc)

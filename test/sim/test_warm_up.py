@@ -40,8 +40,8 @@ from numba.core.registry import CPUDispatcher
 
 def signatures():
     counts = {}
-    for info in pkgutil.iter_modules(sim_package.__path__):
-        module = importlib.import_module(f"cloth_lod_ros.sim.{info.name}")
+    for info in pkgutil.walk_packages(sim_package.__path__, sim_package.__name__ + "."):
+        module = importlib.import_module(info.name)
         for value in vars(module).values():
             if isinstance(value, CPUDispatcher):
                 f = value.py_func
@@ -85,7 +85,7 @@ def test_a_scene_compiles_nothing_after_its_warm_up_and_only_what_it_needs(scene
     result = _run(scene, overrides, steps)
     assert result["new"] == {}, result["new"]
     config = load_scene(scene, overrides)
-    assert ("self_kernels" in result["modules"]) == config.self_collision.enabled
+    assert ("self_broad_kernels" in result["modules"]) == config.self_collision.enabled
     assert "multigrid_kernels" not in result["modules"]             # small cloths: direct
     assert ("hierarchy_kernels" in result["modules"]) == config.lod.enabled
     planned = set(result["planned"])
@@ -120,14 +120,14 @@ def test_a_later_simulator_prepares_what_it_adds():
                        "sim = ClothSim(load_scene(scene, overrides))")
     code = code.replace('print(json.dumps({"new"',
                         'print(json.dumps({"self_before": sum(v for k, v in first.items() '
-                        'if k.startswith("self_kernels.")), "new"')
+                        'if k.startswith("self_broad_kernels.")), "new"')
     proc = subprocess.run([sys.executable, "-c", code,
                            json.dumps(["fold_in_half", ["cloth.level=4"], 20])],
                           cwd=REPO, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     assert result["self_before"] == 0 and result["new"] == {}
-    assert "self_kernels" in result["modules"]
+    assert "self_broad_kernels" in result["modules"]
 
 
 def _compile_events(reporter, names):

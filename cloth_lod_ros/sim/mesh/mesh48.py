@@ -15,8 +15,8 @@ right-angle corner.  Bisecting it creates the midpoint ``m`` and the children
 ``(m, apex, left)`` and ``(m, right, apex)``, both again in that convention.
 
 This module holds the *mechanism* on plain numpy arrays: construction, uniform
-refinement, edge/hinge extraction and invariant checks.  It does not know about
-physics or level-of-detail policy.
+refinement, lumped masses and invariant checks (edges and hinges:
+:mod:`.topology`).  It does not know about physics or level-of-detail policy.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .topology import Hinges, MeshError, build_hinges
+from .topology_kernels import build_hinges as compiled_hinges
 
 __all__ = ["RestMesh", "base_mesh", "refine_uniform", "uniform_vertices_within",
            "triangle_rest_areas", "lumped_masses", "check_mesh"]
@@ -61,10 +62,8 @@ class RestMesh:
     def hinges(self) -> "Hinges":
         """Interior edges with their two opposite vertices (cached per topology)."""
         if "hinges" not in self._cache:
-            # Compiled when numba is there (the same arrays; topology_kernels
-            # imports this module, hence here).
-            from .topology_kernels import build_hinges as compiled
-            self._cache["hinges"] = compiled(self.triangles, self.vertex_count)
+            # Compiled when numba is there (the same arrays).
+            self._cache["hinges"] = compiled_hinges(self.triangles, self.vertex_count)
         return self._cache["hinges"]
 
 

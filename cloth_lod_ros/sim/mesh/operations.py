@@ -1,4 +1,10 @@
-"""The log of the mesh operations a step made, for undoing a refused step.
+"""Mesh operations as values, and the log of those a step made.
+
+``Split(edge)`` bisects the hypotenuse ``edge`` shared by its one or two
+triangles; ``Merge(edge)`` removes that edge's midpoint and restores the two
+triangles; each is the other's :meth:`~Split.inverse` (paper §5.2-§5.3,
+design §4).  :class:`~cloth_lod_ros.sim.mesh.hierarchy.Hierarchy48` applies
+them.
 
 :meth:`cloth_lod_ros.sim.cloth.ClothSim.step` keeps every split and merge
 its LOD pass makes, so that a step that fails can be undone exactly (the
@@ -14,6 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from .hierarchy_kernels import SPLIT
 
 __all__ = ["OperationLog", "Split", "Merge"]
 
@@ -41,7 +49,6 @@ class OperationLog:
 
     def values(self) -> list:
         """The Split/Merge values, in order."""
-        from .hierarchy_kernels import SPLIT
         out = []
         for part in self._parts:
             if isinstance(part, np.ndarray):

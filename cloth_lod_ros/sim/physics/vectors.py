@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .elements import Elements
-
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...i->...", a, b)
@@ -36,9 +34,10 @@ def _cross_soa(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def _corners(elements: Elements, x: np.ndarray) -> np.ndarray:
+def _corners(elements, x: np.ndarray) -> np.ndarray:
     """Corner positions (or velocities) ``(3 corners, 3 components, t)`` of the
-    triangles from ``x`` ``(n, 3)``: one gather from contiguous ``(3, n)`` data
+    triangles of ``elements`` (:class:`~cloth_lod_ros.sim.physics.elements.Elements`,
+    its ``triangles_cm``) from ``x`` ``(n, 3)``: one gather from contiguous ``(3, n)`` data
     by the contiguous ``(3, t)`` index (gathering columns of the strided
     ``x.T`` with strided index columns cost several times more).  Pure copies."""
     return np.take(np.ascontiguousarray(x.T), elements.triangles_cm, axis=1).swapaxes(0, 1)

@@ -1,7 +1,8 @@
 """Contact rounds on one factorisation: the constrained particles eliminated last
 (design §3, "Linear solvers").
 
-A contact solve (:meth:`~cloth_lod_ros.sim.integrate.implicit_stage.ImplicitStageSolver._solve_with_contacts`)
+A contact solve
+(:meth:`~cloth_lod_ros.sim.integrate.implicit_stage.ImplicitStageSolver._solve_with_contacts`)
 solves ``Â y = b̂`` with ``Â = S A S + (I − S) D (I − S)`` several times on
 the same ``A``: every contact held, then the pulling ones released, then
 rounds in which more of them slide (six solves per Newton iteration in
@@ -13,8 +14,8 @@ particles ``C`` change between them; every other particle is free
     M = S_C T S_C + (I − S_C) D_C (I − S_C),   T = A_CC − L_CI D_I L_CIᵀ,
 
 where ``L_I D_I L_Iᵀ = A_II`` and ``L_CI = A_CI L_I⁻ᵀ D_I⁻¹`` do not depend on
-``S`` at all: they are factorised once per ``A`` (:func:`~cloth_lod_ros.sim.solve.block_ldl.factor_rows`,
-the up-looking factorisation of :mod:`cloth_lod_ros.sim.solve.block_ldl` that stops at ``C`` and
+``S`` at all: they are factorised once per ``A`` (:func:`.block_ldl.factor_rows`,
+the up-looking factorisation of :mod:`.block_ldl` that stops at ``C`` and
 leaves its unfiltered Schur complement ``T``, dense), and each round only
 filters ``T`` and factorises the dense ``M`` (``3|C|`` unknowns, Cholesky),
 all in one compiled call (:func:`round_kernel`).
@@ -33,8 +34,10 @@ import numba
 import numpy as np
 
 from .block_ldl import back_part, factor_rows, forward_part
+from .constraints import SolveResult
+from .factorisation import _FactoredSystem, _block_ldl_module
 from .projection_kernels import (FREE, HELD, _filtered_residual, _particle_filters, _solution,
-                                 _start)
+                                 _start, _usable, particle_filters)
 
 __all__ = ["TrailingFactor", "TrailingRounds", "dense_round_updates", "filtered_schur",
            "round_kernel"]
@@ -294,12 +297,10 @@ class TrailingRounds:
         takes its ordinary factorisation instead (few rounds lately, too
         small, too many or no constraints, a constraint outside the trailing
         block, no compiled kernels)."""
-        from . import projection_kernels as projection
-        from .factorisation import _FactoredSystem, _block_ldl_module
         if self._count(matrix):
             return None                 # declined for this matrix already
         factor = self.factor
-        if not projection._usable(matrix, rhs, constraints):
+        if not _usable(matrix, rhs, constraints):
             return None                 # dtypes the compiled round does not take
         held = factor is not None and factor.holds(matrix)
         if held:
@@ -314,7 +315,7 @@ class TrailingRounds:
                          or backend._updates() < self.min_updates):
             self._decline()
             return None                 # the usual case: a small or contact-free system
-        filters = projection.particle_filters(matrix, rhs, constraints)
+        filters = particle_filters(matrix, rhs, constraints)
         if filters is None:
             return None
         state = filters[0]
@@ -353,7 +354,6 @@ class TrailingRounds:
         factorisation's); 1 where a constraint lies outside its block; 2
         where a constraint names no particle or the dense block is not
         definite (result None)."""
-        from .constraints import SolveResult
         try:
             status, dv, residual = factor.round(matrix, rhs, constraints)
         except np.linalg.LinAlgError:
