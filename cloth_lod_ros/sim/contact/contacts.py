@@ -1,7 +1,8 @@
-"""Analytic obstacles and particle contact (BW §5.3, §6; design §3).
+"""Particle contact with the analytic obstacles (BW §5.3, §6; design §3).
 
-Each obstacle gives, for query points, a signed distance φ (m, negative
-inside) and the outward unit normal of the nearest surface point, vectorised.
+Each obstacle (:mod:`.obstacles`) gives, for query points, a signed distance
+φ (m, negative inside) and the outward unit normal of the nearest surface
+point, vectorised.
 Contact is a *velocity constraint* in the filtered PCG: a particle that is, or
 would get this step, near a surface (see :func:`find_contacts`) has its normal
 velocity prescribed so that it ends the step exactly on the offset surface at

@@ -11,6 +11,18 @@ and that one question is all self-collision costs.  So it runs compiled
 flags in one pass) when the kernels are enabled; the numpy code below is the
 reference and the fallback, and both give the same cache bit for bit.
 
+The geometry of the search, numpy (the reference), vectorised, with compiled
+twins in :mod:`.self_broad_kernels`:
+
+* :func:`layered_boxes` - a hash of the triangles' boxes asking only
+  which cells may hold two layers (cloth far apart in the material, or faces
+  turned by more than 90° from their cell's mean): on a cloth without folds
+  nothing further runs.
+* :func:`box_pairs` - a uniform spatial hash: every axis-aligned box is
+  entered in each grid cell it covers, boxes sharing a cell are candidates,
+  and candidates whose boxes do not overlap are dropped (a few boxes: every
+  pair tested at once).  No Python loop over boxes or pairs.
+
 Positions m.
 """
 

@@ -20,7 +20,7 @@ triangles) was most of the time.
   within reach: the proximity test and the continuous check then skip
   their narrow phase (which would keep nothing).
 
-Selection follows :mod:`~cloth_lod_ros.sim.physics.forces_kernels` (``CLOTH_LOD_KERNELS``,
+Selection follows :mod:`~cloth_lod_ros.sim.runtime.compiled` (``CLOTH_LOD_KERNELS``,
 :func:`~cloth_lod_ros.sim.runtime.compiled.use`): callers ask ``compiled.enabled()``
 and take the numpy path otherwise.  Positions in m.
 """

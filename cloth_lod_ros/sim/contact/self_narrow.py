@@ -1,16 +1,7 @@
-"""Geometry of self-collision (design §3): broad phase, closest points and
-continuous (swept) tests, vectorised over many pairs.  Numpy, the
-reference; :func:`layered_boxes` and :func:`box_pairs` run compiled twins from
-:mod:`~cloth_lod_ros.sim.contact.self_broad_kernels` when the kernels are enabled.
+"""The narrow phase of self-collision (design §3): closest points and
+continuous (swept) tests, vectorised over many pairs (the candidates come
+from :mod:`.self_broad`).
 
-* :func:`layered_boxes` - a hash of the triangles' boxes asking only
-  which cells may hold two layers (cloth far apart in the material, or faces
-  turned by more than 90° from their cell's mean): on a cloth without folds
-  nothing further runs.
-* :func:`box_pairs` - a uniform spatial hash: every axis-aligned box is
-  entered in each grid cell it covers, boxes sharing a cell are candidates,
-  and candidates whose boxes do not overlap are dropped (a few boxes: every
-  pair tested at once).  No Python loop over boxes or pairs.
 * :func:`point_triangle` and :func:`segment_segment` - closest points
   (Ericson, *Real-Time Collision Detection*, §5.1.5 and §5.1.9).
 * :func:`vf_crossing` and :func:`ee_crossing` - continuous tests over a step

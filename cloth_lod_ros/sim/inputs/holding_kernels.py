@@ -1,6 +1,19 @@
-"""Compiled (numba) refresh of a holding patch after a topology change:
-:func:`patch_refresh`, bitwise
-:func:`cloth_lod_ros.sim.inputs.holding.patch_refresh`.
+"""Compiled (numba) refresh of a holding patch after a topology change.
+
+After a topology change every holding patch (pin or grasp) takes the
+particles that splits made inside it
+(:meth:`~cloth_lod_ros.sim.inputs.holding.HeldInputs._refresh_held`).  At
+adaptive-mesh sizes its numpy code is mostly the overhead of some dozens of
+small passes; here it is one or two loops (:func:`patch_refresh`).
+
+The numpy code (:func:`cloth_lod_ros.sim.inputs.holding.patch_refresh`) stays
+the reference and the results are *bitwise* equal (the same arrays, dtypes
+and order; the one floating-point expression, a patch's distance test, is
+the reference's operations in its order, and numba contracts nothing into
+FMAs without fastmath).  The switch is
+:func:`~cloth_lod_ros.sim.runtime.compiled.enabled` (``CLOTH_LOD_KERNELS=numpy``);
+inputs the kernel does not expect (other dtypes, an index out of range) go
+to the reference: its result or its error.
 """
 
 from __future__ import annotations

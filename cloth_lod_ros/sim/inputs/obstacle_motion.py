@@ -8,8 +8,8 @@ pose follows the target at no more than ``max_speed`` (m/s) and
 ``max_angular_speed`` (rad/s), like a grasp's grip, and the cloth does not
 push back on it.
 
-The pose of an obstacle is that of its frame (:class:`~cloth_lod_ros.sim.contact.obstacles.Obstacle`):
-its centre (a plane's point) and the orientation whose z axis is a plane's
+The pose of an obstacle is that of its frame
+(:class:`~cloth_lod_ros.sim.contact.obstacles.Obstacle`): its centre (a plane's point) and the orientation whose z axis is a plane's
 normal or a cylinder's axis, a box's own orientation, the identity for a
 sphere - the pose of its marker.
 

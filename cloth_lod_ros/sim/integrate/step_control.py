@@ -1,31 +1,5 @@
-"""Time stepping: integration schemes made of implicit stages, and the
-step-size control that advances the cloth by one frame (design §3).
-
-Schemes (``simulation.integrator``), each a sequence of stages of the form
-solved by :class:`~cloth_lod_ros.sim.integrate.implicit_stage.ImplicitStageSolver`
-(``M (V − v̂) = γh f(x̂ + γh V, V)``, positions ``X = x̂ + γh V``):
-
-* ``baraff_witkin`` - the paper's method (BW eq. 15): one backward-Euler
-  stage linearised at ``x_n``, one linear solve.  First order, and its
-  numerical damping ``ω²h/2`` over-damps a swinging cloth at 1/60 s.
-* ``backward_euler`` - the same equations solved by Newton iterations from
-  the predictor ``x_n + h v_n`` (first order; large rotations keep their
-  centripetal stretch).
-* ``sdirk2`` (default) - Alexander's two-stage, L-stable, stiffly accurate
-  singly diagonally implicit Runge–Kutta method, ``γ = 1 − 1/√2``
-  (Alexander 1977; Hairer & Wanner, *Solving ODEs II*, §IV.6, table 6.5)::
-
-      Y₁ = y_n + γh F(Y₁)
-      y_{n+1} = Y₂ = y_n + (1 − γ)h F(Y₁) + γh F(Y₂)
-
-  for ``y = (x, v)``, ``F = (v, M⁻¹f)``.  Both stages have the backward-Euler
-  form with step ``γh``: stage 2 starts from ``x̂ = x_n + (1 − γ)h V₁`` and
-  ``v̂ = v_n + (1 − γ)/γ (V₁ − v_n)`` (``M⁻¹f(Y₁) = (V₁ − v_n)/(γh)``, pin
-  and contact impulses included).  Second order, with no numerical damping
-  of slow modes to leading order, and one-step: nothing to carry across a
-  change of topology, of contacts or of the step size (a multistep method
-  such as BDF2 would need the previous state mapped through every split and
-  merge).
+"""Time stepping: the step-size control that advances the cloth by one frame
+with a scheme of :mod:`.schemes` (design §3).
 
 Step-size control (:class:`TimeStepper`): ``simulation.time_step`` is the
 frame period ``H`` - the largest step and the interval at which the cloth is

@@ -5,11 +5,11 @@ criterion on every hinge (:func:`cloth_lod_ros.sim.lod.policy.hinge_measures`),
 lists the triangles to refine, finds the split particles whose merge is
 valid (:meth:`Hierarchy48.split_vertices`), tests them (settled hinges, old
 children, not held) and computes the energy each would add
-(:func:`cloth_lod_ros.sim.lod.merge_energy.merge_energy_change`).  At
-adaptive-mesh sizes (a few hundred hinges, tens of candidates) their numpy
-code is mostly the overhead of about a hundred small passes; here each is
-one loop (:func:`criterion`, :func:`refine_order`, :func:`split_candidates`,
-:func:`mergeable`, :func:`merge_energies`).
+(:func:`cloth_lod_ros.sim.lod.merge_energy.merge_energy_change`, compiled in
+:mod:`.merge_energy_kernels`).  At adaptive-mesh sizes (a few hundred hinges,
+tens of candidates) their numpy code is mostly the overhead of about a
+hundred small passes; here each is one loop (:func:`criterion`,
+:func:`refine_order`, :func:`split_candidates`, :func:`mergeable`).
 
 The numpy code stays the reference, and the results here are *bitwise* equal:
 the thresholds (``added.total <= bound``, the refine and coarsen deviations)

@@ -1,23 +1,20 @@
-"""Compiled (numba) kernels for the compact arrays a topology change refreshes.
+"""Compiled (numba) compact mesh of a hierarchy's active elements.
 
 After every LOD pass that changes the mesh, :class:`~cloth_lod_ros.sim.cloth.ClothSim`
 rebuilds its compact view of the hierarchy
 (:meth:`~cloth_lod_ros.sim.mesh.hierarchy.Hierarchy48.active_mesh`: the active
-particles and triangles, renumbered) and lets every holding patch (pin or
-grasp) take the particles that splits made inside it
-(:meth:`~cloth_lod_ros.sim.inputs.holding.HeldInputs._refresh_held`).  At adaptive-mesh
-sizes (a few hundred particles) their numpy code is mostly the overhead of
-some dozens of small passes, run with the caches cold after a time step; here
-each is one or two loops (:func:`active_mesh`, :func:`patch_refresh`).
+particles and triangles, renumbered).  At adaptive-mesh sizes (a few hundred
+particles) its numpy code is mostly the overhead of some dozens of small
+passes, run with the caches cold after a time step; here it is one loop
+(:func:`active_mesh`).  The holding patches' refresh that follows is
+:mod:`cloth_lod_ros.sim.inputs.holding_kernels`'; the whole refresh with the
+element data, :func:`cloth_lod_ros.sim.physics.elements_kernels.adopt`.
 
-The numpy code stays the reference and the results are *bitwise* equal (the
-same arrays, dtypes and order; the one floating-point expression, a patch's
-distance test, is the reference's operations in its order, and numba
-contracts nothing into FMAs without fastmath).  The switch is
-:mod:`~cloth_lod_ros.sim.physics.forces_kernels`' (:func:`~cloth_lod_ros.sim.runtime.compiled.enabled`,
-``CLOTH_LOD_KERNELS=numpy``); without numba everything is the reference.
-Inputs the kernels do not expect (other dtypes, an index out of range) go
-to the reference: its result or its error.
+The numpy code (``Hierarchy48.active_mesh``) stays the reference and the
+results are *bitwise* equal (the same arrays, dtypes and order).  The switch
+is :func:`~cloth_lod_ros.sim.runtime.compiled.enabled` (``CLOTH_LOD_KERNELS=numpy``);
+without numba everything is the reference.  Pools the kernel does not expect
+(other dtypes) go to the reference.
 """
 
 from __future__ import annotations

@@ -23,8 +23,8 @@ arrays, with the edge index, midpoint map and free lists in the kernels' form;
 the Python methods here are their reference, with bitwise equal results.  The
 Python containers are rebuilt from the kernels' form when read.
 
-**Operations are values.**  ``Split(edge)`` bisects the hypotenuse ``edge`` shared
-by its one or two triangles; ``Merge(edge)`` removes that edge's midpoint and
+**Operations are values** (:mod:`.operations`).  ``Split(edge)`` bisects the
+hypotenuse ``edge`` shared by its one or two triangles; ``Merge(edge)`` removes that edge's midpoint and
 restores the two triangles.  ``Split(e).inverse() == Merge(e)`` and vice versa;
 :meth:`Hierarchy48.refine` returns the list of splits it performed (forced ones
 first) so ``for op in reversed(ops): h.apply(op.inverse())`` undoes it exactly.

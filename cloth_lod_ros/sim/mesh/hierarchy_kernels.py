@@ -11,8 +11,8 @@ here are *bitwise* equal: every pool array, the free-list order (so new ids
 are the same), the midpoint map, ``version`` and the operation log.  The
 floating-point operations are the reference's, in its order (numba contracts
 nothing into FMAs without fastmath).  The switch is
-:mod:`~cloth_lod_ros.sim.physics.forces_kernels`' (``CLOTH_LOD_KERNELS=numpy``); without
-numba everything is the reference.
+:mod:`~cloth_lod_ros.sim.runtime.compiled`' (``CLOTH_LOD_KERNELS=numpy``);
+without numba everything is the reference.
 
 The kernels' form of the index that the reference keeps in Python
 containers (:class:`CompiledIndex`):

@@ -1,19 +1,17 @@
-"""Compiled (numba) kernels for what a topology change builds from the new mesh.
+"""Compiled (numba) hinges of a new topology, with its edge structure.
 
 An adaptive mesh changes topology at a fraction of its steps, and every
-change rebuilds the same pure functions of the new triangles: the interior
-edges as hinges (:func:`cloth_lod_ros.sim.mesh.topology.build_hinges`), the rest
-coefficients of every element (:func:`cloth_lod_ros.sim.physics.elements.precompute`)
-and the edge structure the first solve's sparsity pattern is built from
-(:mod:`~cloth_lod_ros.sim.solve.pattern_kernels`).  At adaptive-mesh sizes
-(a few hundred particles) their numpy code is mostly the overhead of some
-dozens of small passes; these kernels do each in a few loops.
+change rebuilds the interior edges as hinges
+(:func:`cloth_lod_ros.sim.mesh.topology.build_hinges`) and, with them, the edge
+structure the first solve's sparsity pattern is built from
+(:mod:`~cloth_lod_ros.sim.solve.pattern_kernels`); the elements' rest data
+follow (:mod:`cloth_lod_ros.sim.physics.elements_kernels`).  At adaptive-mesh
+sizes (a few hundred particles) the numpy code is mostly the overhead of some
+dozens of small passes; the kernel does it in a few loops.
 
 The numpy code stays the reference: the results here are *bitwise* equal
-(same arrays, dtypes and order; the floating-point operations are the
-reference's, in its order, and numba contracts nothing into FMAs without
-fastmath).  The switch is :mod:`~cloth_lod_ros.sim.physics.forces_kernels`'
-(:func:`~cloth_lod_ros.sim.runtime.compiled.enabled`, ``CLOTH_LOD_KERNELS=numpy``);
+(same arrays, dtypes and order).  The switch is
+:func:`~cloth_lod_ros.sim.runtime.compiled.enabled` (``CLOTH_LOD_KERNELS=numpy``);
 without numba everything is the reference.  Inputs the kernels do not expect
 (other dtypes, vertex indices outside ``[0, n)``) go to the reference too:
 its result or its error, never a write out of bounds.
@@ -141,7 +139,8 @@ def build_hinges(triangles: np.ndarray, vertex_count: int) -> _topology.Hinges:
     status, edge, opposite, tris, hyp, border, ends, half_edge, corner = _hinges(
         np.ascontiguousarray(t), int(vertex_count))
     if status == 2:
-        raise _topology.MeshError("non-manifold mesh: an edge is shared by more than two triangles")
+        raise _topology.MeshError(
+            "non-manifold mesh: an edge is shared by more than two triangles")
     if status == 3:
         raise _topology.MeshError(
             "inconsistent orientation: two triangles traverse an edge the same way")

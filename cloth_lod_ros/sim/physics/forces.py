@@ -1,13 +1,15 @@
 """Baraff–Witkin cloth conditions as resolution-independent energy densities.
 
-Vectorised over triangles and hinges (:mod:`cloth_lod_ros.sim.physics.forces_kernels` compiles the same maths).
+Vectorised over triangles and hinges (:mod:`.forces_kernels` compiles the same
+maths).  The rest data are :mod:`.elements`', the hinge angles :mod:`.hinges`',
+the air :mod:`.air`'; the energies alone, without forces, :mod:`.energies`.
 SI units: positions in m, velocities in m/s, forces in N, energies in J.
 References: Baraff & Witkin, "Large steps in cloth simulation" (1998), §4.2–4.5
 (conditions, forces, damping), §5 (implicit step); the seed paper §5
 (bend condition C = θ); design §2 (energies as discretised densities).
 
 Conditions (``A`` = rest area of the triangle in m², ``w_u``/``w_v`` = the
-deformation gradient's columns, see :func:`precompute`):
+deformation gradient's columns, see :func:`.elements.precompute`):
 
 * stretch  ``C_u = √A (|w_u| − 1)``, ``C_v = √A (|w_v| − 1)``,
   energy ``k_s/2 (C_u² + C_v²)``; ``k_s`` in N/m.  Because ``C² ∝ A`` a uniform
@@ -22,7 +24,7 @@ deformation gradient's columns, see :func:`precompute`):
   the border strip make a deficit of order one edge length).
 
 Damping is Rayleigh-like along each condition (BW §4.5):
-``f_d = −β k ∇C Ċ`` with ``β`` in seconds.  The air (:func:`air_forces`, design
+``f_d = −β k ∇C Ċ`` with ``β`` in seconds.  The air (:func:`.air.air_forces`, design
 §2) pushes each face along its normal, ``−½ ρ C_d A |v_n| v_n n`` (ρ in kg/m³,
 C_d dimensionless, A the current area, v_n the normal component of the face's
 velocity relative to the wind), a third to each corner; the integrator adds the

@@ -5,26 +5,23 @@ The numpy code in :mod:`~cloth_lod_ros.sim.physics.forces` and
 implementation; this module computes the same quantities with one compiled
 loop per element kind (triangles, hinges) instead of dozens of numpy passes
 over ``(3, t)`` temporaries.  The maths is exactly the reference's (BW §4.2–4.5
-conditions, forces, damping and the kept Jacobians of physics/forces.py's docstring;
-Bridson et al. 2003 for the hinge gradient), written per element.  Units are
-SI: positions m, velocities m/s, forces N, stiffness blocks N/m times the
+conditions, forces, damping and the kept Jacobians of the docstring of
+:mod:`~cloth_lod_ros.sim.physics.forces`; Bridson et al. 2003 for the hinge
+gradient, :mod:`.hinges_kernels`), written per element.  Units are SI:
+positions m, velocities m/s, forces N, stiffness blocks N/m times the
 weights.
 
-Besides the evaluation (:func:`evaluate`, :func:`assemble`), the per-step
-measures have compiled twins: :func:`hinge_angles` (the LOD criterion, merge
-energies), :func:`stretch_lengths` (the step's strain test) and
-:func:`elastic_energies` (the statistics).
+The per-step measures have compiled twins of their own:
+:mod:`.hinges_kernels` (the hinge angles: the LOD criterion, merge energies)
+and :mod:`.energies_kernels` (the step's strain test, the statistics).
 
-Selection: these functions use the kernels when numba
-imports and the environment variable ``CLOTH_LOD_KERNELS`` is not ``numpy``
-(``numba``/``auto``/unset: compiled if available); :func:`use` switches at run
-time (tests, benchmarks).  Without numba everything falls back to the numpy
-reference, which stays the definition.
-
-The kernels are compiled on first use and cached next to this module
-(``cache=True``: ``__pycache__/kernels.*.nbi``/``.nbc``), so a later process
-only loads them.  ``error_model="numpy"``: a degenerate element (a zero-length
-edge or normal) gives inf/nan like the numpy code instead of raising.
+Selection: these functions use the kernels when
+:func:`~cloth_lod_ros.sim.runtime.compiled.enabled` (numba imports and
+``CLOTH_LOD_KERNELS`` is not ``numpy``); without numba everything falls back
+to the numpy reference, which stays the definition.  ``error_model="numpy"``
+(:mod:`~cloth_lod_ros.sim.runtime.compiled`): a degenerate element (a
+zero-length edge or normal) gives inf/nan like the numpy code instead of
+raising.
 """
 
 from __future__ import annotations

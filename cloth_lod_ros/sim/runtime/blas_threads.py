@@ -1,8 +1,8 @@
 """One BLAS thread inside a simulation step (design §3, "Linear solvers").
 
 The dense work of a step is small: the trailing rounds' Cholesky of
-``3|C|`` unknowns (:mod:`cloth_lod_ros.sim.solve.trailing_ldl`, LAPACK through numba), 3 × 3 blocks,
-a few matrix products.  numpy's and scipy's OpenBLAS start one thread per
+``3|C|`` unknowns (:mod:`cloth_lod_ros.sim.solve.trailing_ldl`, LAPACK through
+numba), 3 × 3 blocks, a few matrix products.  numpy's and scipy's OpenBLAS start one thread per
 core and split such calls between them, which buys nothing at these sizes
 and costs twice over:
 

@@ -34,7 +34,8 @@ _enabled = available and os.environ.get("CLOTH_LOD_KERNELS", "auto").lower() != 
 
 
 def enabled() -> bool:
-    """Whether :func:`evaluate` and :func:`assemble` run the compiled kernels."""
+    """Whether the ``*_kernels`` modules run their compiled kernels (else the
+    numpy reference)."""
     return _enabled
 
 

@@ -283,7 +283,8 @@ class BlockVCycle:
     Args:
         fine: ``(indptr, indices, data)`` of the fine operator (:func:`block_arrays`).
         fine_inverse_diagonal: ``(n, 3, 3)`` its diagonal blocks' inverses.
-        prolongations: scalar CSR ``P_k`` (:func:`~cloth_lod_ros.sim.solve.multigrid.lattice_hierarchy`).
+        prolongations: scalar CSR ``P_k``
+            (:func:`~cloth_lod_ros.sim.solve.multigrid.lattice_hierarchy`).
         degree: Chebyshev sweeps before and after each coarse correction.
     """
 

@@ -1,16 +1,11 @@
-"""Linearised backward Euler with the filtered (modified) PCG (BW §5–§5.3).
+"""The 3 × 3-block sparsity pattern of the system matrix, and the assembly into it.
 
 One step solves ``(M − h ∂f/∂v − h² ∂f/∂x) Δv = h (f + h ∂f/∂x v)`` (BW eq. 15)
-for the velocity change ``Δv``.  Constraints are per particle: a projector
-``S_i`` (identity = free, 0 = fully held) and a prescribed velocity change
-``z_i`` in the held directions.  The modified PCG of BW §5.3 keeps every
-iterate inside the constraint set by filtering with ``S``; the start value is
-``Δv₀ = S y + (I − S) z`` (Ascher & Boxerman's correction, so held directions
-take exactly ``z`` while ``y`` — the previous solution — warm-starts the rest).
-
-Assembly is vectorised: the block sparsity pattern and the slot of every element
+for the velocity change ``Δv`` (:mod:`.pcg`, :mod:`.backends`).  Assembly is
+vectorised: the block sparsity pattern and the slot of every element
 entry are computed once per topology (:class:`SparsePattern`) and each step only
-sums values into the fixed slots with ``np.bincount``.
+sums values into the fixed slots with ``np.bincount`` (compiled:
+:mod:`.pattern_kernels`, which also builds the pattern from the mesh's edges).
 """
 
 from __future__ import annotations
@@ -59,7 +54,7 @@ class SparsePattern:
         # Compiled when numba is there: one slot per vertex pair (the block
         # slots the compiled assembly adds through), bitwise the reference's,
         # without the key tables and dozens of small numpy passes
-        # (mesh/topology_kernels.py); the 9x larger entry slots only if asked for.
+        # (pattern_kernels.py); the 9x larger entry slots only if asked for.
         # Its storage is best reused (PatternStorage).
         self._owned = (storage.take_slots(pairs) if storage is not None
                        else np.empty(pairs, dtype=np.int64))
@@ -120,7 +115,7 @@ class SparsePattern:
         slots = self._all_slots
         if _compiled.enabled():
             # The compiled scatter: the same sums in the same order, without
-            # the concatenated copy of all blocks (physics/forces_kernels.py).
+            # the concatenated copy of all blocks (pattern_kernels.py).
             data = np.zeros(9 * self.block_count)
             offset = 0
             for blocks in element_blocks:

@@ -20,7 +20,7 @@ same results bitwise as the numpy reference:
   the triangles it replaces (47 against 73 µs at 343 particles, 102 against 161
   at 701).
 
-The switch is :mod:`~cloth_lod_ros.sim.physics.forces_kernels`' (``CLOTH_LOD_KERNELS=numpy``);
+The switch is :mod:`~cloth_lod_ros.sim.runtime.compiled`' (``CLOTH_LOD_KERNELS=numpy``);
 without numba, or for inputs the kernels do not expect (other dtypes, an index
 outside ``[0, n)``, an edge structure that does not describe the elements),
 the reference builds it.

@@ -1,6 +1,13 @@
-"""The modified (filtered) PCG of BW §5.3: every iterate stays inside the
-constraint set; start value ``Δv₀ = S y + (I − S) z`` (Ascher & Boxerman's
-correction).
+"""The filtered (modified) PCG of BW §5.3.
+
+One step solves ``(M − h ∂f/∂v − h² ∂f/∂x) Δv = h (f + h ∂f/∂x v)`` (BW eq. 15)
+for the velocity change ``Δv``.  Constraints are per particle
+(:class:`~cloth_lod_ros.sim.solve.constraints.Constraints`): a projector
+``S_i`` (identity = free, 0 = fully held) and a prescribed velocity change
+``z_i`` in the held directions.  The modified PCG of BW §5.3 keeps every
+iterate inside the constraint set by filtering with ``S``; the start value is
+``Δv₀ = S y + (I − S) z`` (Ascher & Boxerman's correction, so held directions
+take exactly ``z`` while ``y`` — the previous solution — warm-starts the rest).
 """
 
 from __future__ import annotations

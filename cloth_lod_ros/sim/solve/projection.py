@@ -53,7 +53,7 @@ def projected_data(matrix: sp.bsr_matrix, rhs: np.ndarray, constraints: Constrai
                    pattern: SparsePattern | None = None, out: np.ndarray | None = None):
     """:func:`project_system` without building the BSR matrix: ``(Â's data
     (blocks, 3, 3) on A's pattern, b̂ (n, 3), z (n, 3))``.  Compiled where
-    numba is (:mod:`cloth_lod_ros.sim.solve.projection_kernels`, writing ``Â`` into ``out`` if it has
+    numba is (:mod:`.projection_kernels`, writing ``Â`` into ``out`` if it has
     the right shape); the numpy below is the reference."""
     fast = _projection.projected_data(matrix, rhs, constraints, out)
     if fast is not None:

@@ -21,8 +21,8 @@ Agreement with the numpy reference (:mod:`~cloth_lod_ros.sim.solve.pattern`):
   ``matmul``/``einsum`` go through BLAS), so they agree to round-off;
 * the norms of the relative residual likewise.
 
-The switch is :mod:`~cloth_lod_ros.sim.physics.forces_kernels`'
-(:func:`~cloth_lod_ros.sim.runtime.compiled.enabled`, ``CLOTH_LOD_KERNELS=numpy``);
+The switch is :func:`~cloth_lod_ros.sim.runtime.compiled.enabled`
+(``CLOTH_LOD_KERNELS=numpy``);
 without numba the reference runs.  The functions here return ``None`` for
 inputs they do not take (other dtypes, indices out of range), and the caller
 runs the reference, which gives its result or its error.

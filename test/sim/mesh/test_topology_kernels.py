@@ -50,7 +50,7 @@ def _build(mesh, compiled):
     hinges_first = first.hinges()                 # then precompute reads them
     elements_first = elements_kernels.precompute(first)
     mesh = _fresh(mesh)
-    elements = elements_kernels.precompute(mesh)                # a new mesh: hinges and all in one call
+    elements = elements_kernels.precompute(mesh)  # a new mesh: hinges and all in one call
     hinges = mesh.hinges()
     for name in ("edge", "opposite", "triangles", "is_hypotenuse", "boundary_edges"):
         _same(getattr(hinges_first, name), getattr(hinges, name))

@@ -1,4 +1,6 @@
-"""The compiled kernels (physics/forces_kernels.py) equal the numpy reference (physics/forces.py, solve/pattern.py).
+"""The compiled kernels (physics/forces_kernels.py, hinges_kernels.py,
+energies_kernels.py) equal the numpy reference (physics/forces.py, hinges.py,
+energies.py; solve/pattern.py).
 
 Forces, ``(∂f/∂x) v``, energies, hinge angles and gradients, element blocks and
 assembled matrices on random deformed meshes, uniform and graded, with damping
@@ -274,7 +276,8 @@ def test_measures_match_reference(kind, seed):
     np.testing.assert_array_equal(grad, ref_grad)
     assert_close_ulps(hinges_kernels.hinge_angles(x, hv[:5]), ref_theta[:5])
     assert hinges_kernels.hinge_angles(x, hv[:0]).shape == (0,)
-    assert_close(energies_kernels.stretch_lengths(elements, x), energies.stretch_lengths(elements, x))
+    assert_close(energies_kernels.stretch_lengths(elements, x),
+                 energies.stretch_lengths(elements, x))
     ours = energies_kernels.elastic_energies(elements, material(), x)
     ref = energies.elastic_energies(elements, material(), x)
     assert ours == pytest.approx(ref, rel=RTOL)
