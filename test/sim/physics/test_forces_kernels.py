@@ -220,7 +220,7 @@ def test_numpy_switch_selects_the_reference():
     ev = forces_kernels.evaluate(elements, material(), x, v, 1.0, 1.0)
     # Switched off, forces_kernels.evaluate is the reference's code: bitwise.
     np.testing.assert_array_equal(ev.force, reference(elements, material(), x, v, 1.0, 1.0).force)
-    code = "from cloth_lod_ros.sim import kernels; print(compiled.enabled())"
+    code = "from cloth_lod_ros.sim.runtime import compiled; print(compiled.enabled())"
     env = dict(os.environ, CLOTH_LOD_KERNELS="numpy")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True).stdout.strip()
