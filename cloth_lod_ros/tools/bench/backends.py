@@ -44,7 +44,8 @@ QUICK_CASES = (("uniform L3", "hang_two_corners", ["lod.enabled=false", "cloth.l
 def run_backends(out: Path, repeats: int = 3, quick: bool = False, cpu: int | None = None,
                  backends=BACKENDS, progress=print) -> dict:
     """Run every case with every backend; return and write the results."""
-    from .runner import _run_worker, write_suite    # pinned single-thread workers
+    from .process import run_in_process     # pinned single-thread workers
+    from .runner import write_suite
     from ...sim.solve.backends import available_methods
     backends = [b for b in backends if b in available_methods()]    # optional ones
     cases = QUICK_CASES if quick else CASES
@@ -63,7 +64,7 @@ def run_backends(out: Path, repeats: int = 3, quick: bool = False, cpu: int | No
                                 points=points, times=[duration], duration=duration, rest=None,
                                 cpu=cpu)
                     tag = f"{len(runs)}_{round_index}"
-                    result = _run_worker(spec, Path(tmp), tag.replace(" ", "_"))
+                    result = run_in_process(spec, Path(tmp), tag.replace(" ", "_"))
                     runs.setdefault((label, backend), []).append(result)
                     c = result["cost"]
                     progress(f"  {label:32s} {backend:9s} {1e3 * c['wall_s'] / c['steps']:8.1f} "

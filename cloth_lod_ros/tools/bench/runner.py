@@ -65,69 +65,13 @@ from .plan import (FULL, QUICK, REFERENCE_KINDS, BenchError, configurations, fam
 from .plot import plot, write_csv
 from .report import PAPER, markdown
 from .rows import config_row, flag_other_shapes, paper_row, reference_summary
+from .pools import make_pool
+from .process import THREAD_VARIABLES, _package_root
 from .worker import run_spec_file
 
 __all__ = ["add_arguments", "run", "main", "BenchError", "PAPER"]
 
 DEFAULT_SCENE = "hang_two_corners"
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                    "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
-
-
-def _package_root() -> str:
-    """The directory that holds the ``cloth_lod_ros`` package (the repository root
-    for a source tree), so workers import the same code as this process."""
-    return str(Path(__file__).resolve().parents[3])
-
-
-def _run_worker(spec: dict, workdir: Path, tag: str) -> dict:
-    """Run ``spec`` in a fresh single-threaded process; return its result."""
-    spec_path = workdir / f"{tag}.spec.json"
-    result_path = workdir / f"{tag}.result.json"
-    spec = dict(spec, result=str(result_path))
-    spec_path.write_text(json.dumps(spec))
-    env = dict(os.environ)
-    for name in THREAD_VARIABLES:
-        env[name] = "1"
-    env["PYTHONPATH"] = os.pathsep.join(
-        [_package_root()] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
-    proc = subprocess.run([sys.executable, "-m", "cloth_lod_ros.tools.bench", "--worker",
-                           str(spec_path)], env=env, capture_output=True, text=True)
-    if proc.returncode != 0 or not result_path.exists():
-        tail = "\n".join(proc.stderr.strip().splitlines()[-15:])
-        raise BenchError(f"worker {tag} failed (exit {proc.returncode}):\n{tail}")
-    return json.loads(result_path.read_text())
-
-
-class _LocalPool:
-    """The bench's own runner: each run in turn, in a fresh process pinned to
-    ``--cpu`` (:func:`_run_worker`).  ``map`` yields ``(key, result)``."""
-
-    workers = None
-    workdir: Path
-
-    def map(self, jobs):
-        for key, spec, tag in jobs:
-            t0 = _time.perf_counter()
-            result = _run_worker(spec, self.workdir, tag)
-            result["process_s"] = _time.perf_counter() - t0
-            yield key, result
-
-    def close(self) -> None:
-        pass
-
-
-def _pool(args):
-    """Where the runs run: this machine's ``--cpu`` (default), or Dask workers
-    (``--scheduler``/``--workers``: each run in a fresh process pinned to its
-    worker's core, one timed run per core at a time;
-    :class:`cloth_lod_ros.tools.sweep.cluster.PinnedDaskPool`)."""
-    if getattr(args, "scheduler", None) or getattr(args, "workers", None):
-        from ..sweep.cluster import PinnedDaskPool
-        return PinnedDaskPool(args.scheduler, args.workers, say=print)
-    return _LocalPool()
-
-
 def write_suite(out: Path, stem: str, rows: list, repeats: int, cpu: int, start: float,
                 render) -> dict:
     """Write ``stem``.json and ``stem``.md (``render(result)``) for a suite
@@ -444,7 +388,7 @@ def run(args) -> int:
         + (reference.describe() if reference else SAME_STEP_LABEL))
     by_key = {c["key"]: c for c in configs}
     try:
-        pool = _pool(args)
+        pool = make_pool(args)
     except RuntimeError as exc:                 # no cluster, or workers that cannot run
         print(f"cloth-lod bench: {exc}", file=sys.stderr)
         return 2

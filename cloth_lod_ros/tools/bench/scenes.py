@@ -84,7 +84,8 @@ QUICK_SCENE_CASES = (
 def run_scenes(out: Path, repeats: int = 3, quick: bool = False, cpu: int | None = None,
                cases=None, progress=print) -> dict:
     """Run every case ``repeats`` times in rounds; write and return the table."""
-    from .runner import _run_worker, write_suite    # pinned single-thread workers
+    from .process import run_in_process     # pinned single-thread workers
+    from .runner import write_suite
     from ...sim.solve.backends import available_methods
     cases = cases or (QUICK_SCENE_CASES if quick else SCENE_CASES)
     if "cholmod" not in available_methods():
@@ -103,7 +104,7 @@ def run_scenes(out: Path, repeats: int = 3, quick: bool = False, cpu: int | None
             for index, case in enumerate(cases):
                 spec = dict(scene=case.scene, overrides=list(case.overrides), points=[],
                             times=[], duration=case.duration, rest=None, cpu=cpu)
-                result = _run_worker(spec, Path(tmp), f"{index}_{round_index}")
+                result = run_in_process(spec, Path(tmp), f"{index}_{round_index}")
                 runs.setdefault(case.label, []).append(result["cost"])
                 c = result["cost"]
                 progress(f"  {case.label:48s} {1e3 * c['wall_s'] / c['steps']:8.1f} ms/frame"

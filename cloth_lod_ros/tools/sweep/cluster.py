@@ -16,7 +16,8 @@
   the scheduler itself), yields results as they finish, draws the progress
   line, and on Ctrl-C cancels what is left (:meth:`Runner.cancel`).
 * :func:`cpu_assignment`, :func:`cpu_lock`: the bench's pinning (one timed
-  run at a time per core, each worker's runs pinned to its own core).
+  run at a time per core, each worker's runs pinned to its own core; the
+  bench's pool, :mod:`cloth_lod_ros.tools.bench.pools`, uses them).
 
 Reference: the Dask distributed documentation (``Client.submit``,
 ``Client.run``, ``LocalCluster``, ``distributed.wait``, ``distributed.Lock``).
@@ -32,7 +33,7 @@ import time as _time
 import uuid
 
 __all__ = ["ClusterError", "THREAD_ENV", "open_client", "close", "check_workers", "Runner",
-           "Progress", "cpu_assignment", "cpu_lock", "need_distributed", "PinnedDaskPool"]
+           "Progress", "cpu_assignment", "cpu_lock", "need_distributed"]
 
 #: One thread in every pool a worker's libraries start.
 THREAD_ENV = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
@@ -305,85 +306,3 @@ class Runner:
                 pass
         self.pending.clear()
         return len(futures)
-
-
-def _pinned_task(payload: dict) -> dict:
-    """On a worker: one ``cloth-lod bench`` run in a fresh process pinned to
-    this worker's core (the bench's ``_run_worker``: one thread, pinned before
-    any work), taking turns with any other run on that core; returns the run's
-    result with ``worker``, ``host`` and ``cpu``."""
-    import socket
-    import tempfile
-    from pathlib import Path
-    from distributed import get_worker
-    from ..bench.runner import _run_worker
-    address = get_worker().address
-    host = socket.gethostname()
-    allowed = sorted(os.sched_getaffinity(0))
-    cpu = payload["cpus"].get(address)
-    if cpu not in allowed:                  # a worker that joined after the assignment
-        cpu = allowed[0]
-    with tempfile.TemporaryDirectory(prefix="cloth_lod_bench_") as tmp:
-        spec = dict(payload["spec"], cpu=cpu)
-        if payload.get("scene_text") is not None:   # workers need not share our files
-            scene_file = Path(tmp) / payload["scene_name"]
-            scene_file.write_text(payload["scene_text"])
-            spec["scene"] = str(scene_file)
-        with cpu_lock(host, cpu):
-            start = _time.perf_counter()
-            result = _run_worker(spec, Path(tmp), payload["tag"])
-            result["process_s"] = _time.perf_counter() - start
-    result.update(worker=address, host=host, cpu=cpu)
-    return result
-
-
-class PinnedDaskPool:
-    """``cloth-lod bench`` runs on Dask workers, each in a fresh pinned process
-    (:func:`_pinned_task`): a LocalCluster (``workers``) or a scheduler.
-
-    :meth:`map` takes ``(key, spec, tag)`` jobs and yields ``(key, result)`` as
-    they finish; a run that fails raises the bench's BenchError.  ``workers``
-    (after opening) maps each worker's address to its host and CPU.
-    """
-
-    def __init__(self, scheduler: str | None, workers: int | None, retries: int = 1,
-                 say=print):
-        self.client, self.cluster = open_client(scheduler, workers)
-        try:
-            answers = check_workers(self.client, say=say)
-        except ClusterError:
-            close(self.client, self.cluster)
-            raise
-        self.cpus = cpu_assignment(answers)
-        self.workers = {a: dict(host=answers[a]["host"], cpu=c) for a, c in self.cpus.items()}
-        self.runner = Runner(self.client, retries=retries)
-        self._scenes: dict = {}
-
-    def _scene(self, scene: str) -> tuple:
-        """The scene file's name and text (None for a built-in name)."""
-        from pathlib import Path
-        if scene not in self._scenes:
-            path = Path(scene)
-            self._scenes[scene] = (path.name, path.read_text()) if path.is_file() else (
-                None, None)
-        return self._scenes[scene]
-
-    def map(self, jobs):
-        from ..bench.plan import BenchError
-        keys = {}
-        for i, (key, spec, tag) in enumerate(jobs):
-            name, text = self._scene(spec["scene"])
-            payload = dict(spec=spec, tag=tag, cpus=self.cpus, scene_name=name,
-                           scene_text=text)
-            keys[f"{i}-{tag}"] = key
-            self.runner.submit(_pinned_task, payload, f"{i}-{tag}")
-        for name, result, error in self.runner.results():
-            if error is not None:
-                self.runner.cancel()
-                raise BenchError(f"run {name.split('-', 1)[1]} failed on the cluster: "
-                                 f"{type(error).__name__}: {error}")
-            yield keys[name], result
-
-    def close(self) -> None:
-        self.runner.cancel()
-        close(self.client, self.cluster)
