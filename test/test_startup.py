@@ -109,7 +109,7 @@ def test_fresh_means_what_numba_loads(tmp_path):
     assert ours()[0] == "cold"
     assert numba_run() == [0, 1]                    # numba agrees: compiled again
     assert ours()[0] == "warm"
-    assert Path(ours()[1]).parent == tmp_path / "cache"
+    assert Path(ours()[1]) == tmp_path / "cache"      # the root of the per-folder caches
 
 
 def test_the_first_line_comes_before_the_slow_imports():
@@ -175,7 +175,7 @@ def test_a_warm_start_says_it_loads_and_when_it_is_ready(tmp_path):
     """Every group prepared in this process (so cached where numba caches for
     this checkout): the CLI's first line says it loads them, a later line says
     they were loaded, and no line says compiling."""
-    from cloth_lod_ros.sim import warm_up
+    from cloth_lod_ros.sim import ClothSim, warm_up
     warm_up.warm_up_compiled_code(ClothSim)         # every group, in every variant
     assert startup.kernel_cache().state == "warm"
     proc = subprocess.run([sys.executable, "-m", "cloth_lod_ros.tools.cli", *RUN,

@@ -28,7 +28,7 @@ from cloth_lod_ros.sim.scene.config import load_scene
 
 pytestmark = pytest.mark.skipif(not compiled.available, reason="numba not installed")
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]     # the repository root
 
 # In a fresh process: build the scene's simulator (its warm-up), count every
 # kernel's signatures, step, count again; which modules' kernels have any.
