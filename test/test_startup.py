@@ -80,8 +80,12 @@ def test_fresh_means_what_numba_loads(tmp_path):
     package = tmp_path / "tinypkg"
     package.mkdir()
     (package / "tiny.py").write_text(TINY)
-    env = _env(NUMBA_CACHE_DIR=str(tmp_path / "cache"), PYTHONPATH=str(tmp_path))
-    run = ("import json, tiny\n"
+    env = _env(NUMBA_CACHE_DIR=str(tmp_path / "cache"),
+               PYTHONPATH=os.pathsep.join((str(tmp_path), str(REPO))))
+    run = ("import json\nfrom pathlib import Path\n"
+           "from cloth_lod_ros.sim.runtime import compiled\n"
+           f"compiled.key_caches_on_package(Path({str(package)!r}))\n"
+           "import tiny\n"
            "tiny.twice(3)\n"
            "print(json.dumps([sum(tiny.twice.stats.cache_hits.values()),"
            " sum(tiny.twice.stats.cache_misses.values())]))\n")

@@ -115,6 +115,18 @@ def _shown_directory(source_dir: Path) -> Path:
     return folder.parent
 
 
+def package_stamp(root: Path) -> bytes:
+    """The key numba's cache holds for every kernel under ``root``: the SHA-256
+    of all its sources (``sim/runtime/compiled.py``'s ``package_stamp``, which
+    this must equal: ``test/test_startup.py``; not imported from there, as
+    importing the simulator is what this module prints before)."""
+    digest = hashlib.sha256()
+    for path in sorted(p for p in Path(root).rglob("*.py") if "__pycache__" not in p.parts):
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+        digest.update(path.read_bytes() + b"\0")
+    return digest.digest()
+
+
 def _numba_version() -> str | None:
     """The installed numba's version, or None: from its ``dist-info`` beside
     the package (importlib.metadata scans every distribution: 0.1 s here)."""
@@ -137,7 +149,7 @@ def _fresh(index: Path, version: str, digest: bytes) -> bool:
         with open(index, "rb") as f:
             if pickle.load(f) != version:       # a str: numba's version
                 return False
-            return digest in f.read()           # the source's SHA-256, as numba stamps it
+            return digest in f.read()           # the package's stamp, as the kernels' locators key it
     except (OSError, pickle.UnpicklingError, EOFError, ValueError):
         return False
 
@@ -153,11 +165,10 @@ def kernel_cache(source_dir: Path = SIM_DIR, modules: tuple = KERNEL_MODULES) ->
     suffix = f".py{sys.version_info[0]}{sys.version_info[1]}{getattr(sys, 'abiflags', '')}.nbi"
     listed = {}                 # cache directory -> its index files
     fresh, missing = [], []
+    digest = package_stamp(Path(source_dir))
     for module in modules:
         source = Path(source_dir) / f"{module}.py"
-        try:
-            digest = hashlib.sha256(source.read_bytes()).digest()
-        except OSError:
+        if not source.is_file():
             missing.append(module)
             continue
         folder = cache_directory(source.parent)

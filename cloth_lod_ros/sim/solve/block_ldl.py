@@ -32,6 +32,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ..runtime import compiled  # noqa: F401  (keys the kernels' cache: before they are decorated)
 __all__ = ["symbolic", "numeric", "factor_rows", "solve", "forward_part", "back_part"]
 
 

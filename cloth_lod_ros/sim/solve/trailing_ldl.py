@@ -33,6 +33,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ..runtime import compiled  # noqa: F401  (keys the kernels' cache: before they are decorated)
 from .block_ldl import back_part, factor_rows, forward_part
 from .constraints import SolveResult
 from .factorisation import _FactoredSystem, _block_ldl_module
