@@ -185,6 +185,7 @@ def reference_criterion(elements, bend_stiffness, x, v, lookahead=0.0):
     force_tol, refine_tol))`` (see :func:`_criterion_tolerances`)."""
     from cloth_lod_ros.sim.lod import policy as lod_policy
     from cloth_lod_ros.sim.physics import hinges as physics_hinges
+    from cloth_lod_ros.sim.runtime import compiled
     previous = compiled.use(False)
     try:
         measures, refine_deviation = lod_policy._criterion(elements, bend_stiffness, x, v, None,
