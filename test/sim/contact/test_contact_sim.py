@@ -110,7 +110,11 @@ def test_drop_on_disc_coarsens_where_it_lies_flat():
     assert after < 0.9 * before
     rim = np.abs(np.hypot(*sim.positions[sim.triangles].mean(axis=1)[:, :2].T) - 0.32) < 0.04
     assert sim.triangle_levels[rim].mean() > sim.triangle_levels[~rim].mean()
-    assert sum(s.merges for s in sim.stats) > 10
+    # Every merge in the flat region removes two of its triangles.  (The count
+    # itself follows the trajectory chaotically: 24 merges on the main of
+    # 2026-11-28, 12 with converged stages (3 Newton iterations, 1e-4 m), 8
+    # with the paper's integrator; 8 and 23 after issue 31's contact changes.)
+    assert sum(s.merges for s in sim.stats) >= (before - after) // 2
 
 
 def test_a_scene_without_obstacles_never_runs_contact_code(monkeypatch):

@@ -98,10 +98,14 @@ def test_friction_between_free_layers_conserves_momentum_and_stops_the_sliding()
     accel = np.diff(np.concatenate([[0.0], low[:10]])) / H
     assert np.allclose(decel, mu * G, rtol=0.03)
     assert np.allclose(accel, mu * G * mass_up / mass_low, rtol=0.03)
-    # The sliding stops: both move with the common velocity p/M.
-    assert up[-1] - low[-1] == pytest.approx(0.0, abs=0.02)
-    assert up[-1] == pytest.approx(common, abs=0.01)
-    assert low[-1] == pytest.approx(common, abs=0.01)
+    # The sliding stops: both move with the common velocity p/M.  (Averaged over
+    # the last 15 steps: the resting layers keep a stick-slip jitter of about
+    # 1 cm/s - measured -0.7..+0.9 cm/s on the main of 2026-11-28, +1.6 cm/s
+    # with 2 Newton iterations - so one step's value is a coin toss at 1 cm/s;
+    # any change to contact that moves a trajectory by round-off flips it.)
+    assert np.mean(up[-15:] - low[-15:]) == pytest.approx(0.0, abs=0.02)
+    assert np.mean(up[-15:]) == pytest.approx(common, abs=0.01)
+    assert np.mean(low[-15:]) == pytest.approx(common, abs=0.01)
 
 
 def test_a_sheet_held_by_table_friction_passes_the_reaction_to_the_table():
