@@ -44,7 +44,7 @@ def test_case_stays_finite_bounded_and_conserving(case, lod):
 
 
 def test_every_case_has_a_quick_and_a_full_flavour_and_builds():
-    assert len({c.name for c in CASES}) == len(CASES) == 11
+    assert len({c.name for c in CASES}) == len(CASES) == 13
     for case in CASES:
         assert case.quick.duration <= case.full.duration
         assert case.quick.level <= case.full.level
