@@ -160,7 +160,7 @@ def test_a_strip_landed_over_an_edge_comes_to_rest(case):
     assert sim.stats[-1].max_strain < 0.01
 
 
-@pytest.mark.xfail(strict=True, reason="measured 1.3 cm/s at 1 s: the particle on the sharp "
+@pytest.mark.xfail(strict=True, reason="measured 1.1 cm/s at 1 s: the particle on the sharp "
                    "edge's 4 mm offset cylinder alternates between released (ending 0.03 mm "
                    "inside) and pushed out, and the overhang rings (issue 31, open)")
 def test_a_strip_landed_over_a_sharp_edge_comes_to_rest():
