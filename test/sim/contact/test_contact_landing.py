@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 from cloth_lod_ros.sim import ClothSim
-from cloth_lod_ros.sim.config import scene_from_dict
-from cloth_lod_ros.sim.contact import ContactSet, nearest_surface
-from cloth_lod_ros.sim.integrator import _short_of_surface
+from cloth_lod_ros.sim.scene.config import scene_from_dict
+from cloth_lod_ros.sim.contact.contacts import ContactSet, nearest_surface
+from cloth_lod_ros.sim.integrate.implicit_stage import _short_of_surface
 
 G = 9.81
 DROP = 0.02            # m, from the strip's start to the table top
