@@ -86,6 +86,21 @@ class _SceneLoader(yaml.SafeLoader):
         finally:
             self._depth -= 1
 
+    def construct_mapping(self, node, deep=False):
+        # YAML requires a mapping's keys to be unique; PyYAML keeps the last
+        # silently, so a scene with two `material:` sections ran with one of
+        # them dropped.  Refused, naming both lines.
+        first = {}
+        for key_node, _ in node.value:
+            if isinstance(key_node, yaml.ScalarNode):
+                line = key_node.start_mark.line + 1
+                if key_node.value in first:
+                    raise SceneError(f"line {line}: key {shorten(key_node.value)} appears "
+                                     f"twice in one mapping (first at line "
+                                     f"{first[key_node.value]}); keys must be unique")
+                first[key_node.value] = line
+        return super().construct_mapping(node, deep)
+
     def construct_yaml_int(self, node):
         if len(node.value) > _MAX_INTEGER_CHARS:
             return HugeInteger(node.value)

@@ -342,6 +342,22 @@ def test_yaml_aliases_are_refused_before_they_expand(tmp_path):
         load_scene(write(tmp_path, MINIMAL + "lod: &l {enabled: true}\nsolver: *l\n"))
 
 
+def test_a_key_given_twice_is_refused_naming_both_lines(tmp_path):
+    """YAML keys are unique (YAML 1.2 §3.2.1.1); PyYAML would keep the last one
+    silently and run the scene without the first."""
+    text = MINIMAL + "material: {density: 0.2}\nmaterial: {density: 0.3}\n"
+    with pytest.raises(SceneError) as info:
+        load_scene(write(tmp_path, text))
+    message = str(info.value)
+    assert "'material'" in message and "line 4" in message and "line 3" in message, message
+    nested = MINIMAL + "material: {density: 0.2, density: 0.3}\n"
+    with pytest.raises(SceneError, match="'density' appears twice"):
+        load_scene(write(tmp_path, nested))
+    # The same key in two different mappings is fine.
+    load_scene(write(tmp_path, MINIMAL + "material: {density: 0.2}\n"
+                     "air: {density: 1.2}\n"))
+
+
 def test_an_alias_bomb_in_an_override_is_refused():
     bomb = "[&a [1, 1, 1, 1, 1, 1, 1, 1, 1], " + ", ".join(
         f"&a{i} [{', '.join([f'*a{i - 1}' if i > 1 else '*a'] * 9)}]" for i in range(1, 6)) + "]"
