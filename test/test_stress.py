@@ -31,7 +31,8 @@ KNOWN = {("fold_in_half", False): "the scene's grasp path strains the cloth to 0
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_case_stays_finite_bounded_and_conserving(case, lod, request):
     if (case.name, lod) in KNOWN:
-        request.applymarker(pytest.mark.xfail(reason=KNOWN[case.name, lod], strict=False))
+        # strict: the day the scene's path is fixed, this says so
+        request.applymarker(pytest.mark.xfail(reason=KNOWN[case.name, lod], strict=True))
     result = run_case(case, lod, quick=True)
     bounds = case.bounds
     assert result.passed, result.failures
