@@ -28,6 +28,7 @@ from typing import Any
 from .bounded_yaml import MAX_NESTING, MAX_SCENE_BYTES, SceneError
 from .bounded_yaml import load_yaml as _load_yaml
 from .bounded_yaml import shorten as _show
+from .fabrics import PRESET_FIELDS, apply_preset
 from .files import (apply_overrides, builtin_scene_names, find_scene_file, parse_override,
                     scenes_directory)
 from .values import MAX_INTEGER, check_bounds as _check_bounds
@@ -75,8 +76,12 @@ class ClothConfig:
 
 @dataclass(frozen=True)
 class MaterialConfig:
-    """Baraff–Witkin material in SI units (per unit rest area where it applies)."""
+    """Baraff–Witkin material in SI units (per unit rest area where it applies).
+    ``preset`` names a fabric (:mod:`.fabrics`) whose density and stiffnesses fill the
+    fields this mapping does not give."""
 
+    preset: str = _spec("str", default="",
+                        doc="fabric preset (docs/scenes.md); fields given here override it")
     density: float = _spec("float", "kg/m^2", gt=0, default=0.2, doc="areal density")
     stretch_stiffness: float = _spec("float", "N/m", ge=0, default=2000.0,
                                      doc="k_s of the u and v stretch conditions")
@@ -328,6 +333,8 @@ def _unit_quaternion(vec: tuple, path: str) -> tuple:
 def _convert(value: Any, meta: dict, path: str, section_type=None):
     kind = meta["kind"]
     if kind == "section":
+        if section_type is MaterialConfig:
+            value = apply_preset(value, path)
         return _build(section_type, value, path)
     if kind == "float?" and value is None:
         return None
@@ -541,6 +548,15 @@ def load_scene(scene: str | os.PathLike,
     if not isinstance(data, dict):
         raise SceneError(f"{path}: a scene file must be a mapping of sections")
     if overrides:
-        data = apply_overrides(data, overrides)
+        items = list(overrides.items()) if isinstance(overrides, dict) else [
+            parse_override(o) for o in overrides]
+        if any(key == "material.preset" for key, _ in items) and isinstance(
+                data.get("material"), dict):
+            # A preset chosen on the command line replaces the file's values of the
+            # fields it fills (other overrides still apply on top of it).
+            data["material"] = {k: v for k, v in data["material"].items()
+                                if k not in PRESET_FIELDS}
+        for key, value in items:
+            data = apply_overrides(data, {key: value})
     data.setdefault("name", path.stem)
     return scene_from_dict(data)
