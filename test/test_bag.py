@@ -447,6 +447,16 @@ def test_unwritable_record_path_is_reported_and_the_node_keeps_simulating(
         assert float(node.stat("sim_time_s")) > t0 + 0.5
         assert node.stat("recording").startswith("failed: cannot create the bag")
         assert node.stats[-1].status[0].level == DiagnosticStatus.WARN
+        # Issue 34: `false` answers the same way for the same state (nothing records),
+        # and clears the failure shown; `true` false true within a second never
+        # collide on a name.
+        first = node.call(SetBool, "cloth/record", SetBool.Request(data=False))
+        again = node.call(SetBool, "cloth/record", SetBool.Request(data=False))
+        assert first.success and first.message.startswith("not recording; cleared the failure")
+        assert again.success and again.message == "not recording"
+        assert node.spin_until(lambda: node.stat("recording") == "off", 20.0)
+        refused = node.call(SetBool, "cloth/record", SetBool.Request(data=True))
+        assert not refused.success and "cannot create the bag" in refused.message
     finally:
         assert node.stop() == 0
 

@@ -342,17 +342,21 @@ class ClothLodNode(Node):
                             what="pause" if request.data else "resume")
 
     def _on_record(self, request, response):
+        """``true``: start a bag unless one is being written (a failed one is finished
+        first); ``false``: finish the bag, or (not recording) clear a failure shown.
+        The answers, state by state, are in docs/recording.md."""
         recording = self.recording
-        if request.data and recording.recorder is None:
-            response.message = self._start_recording(self.get_parameter("record_path").value
-                                                     if recording.error is None else "")
-            response.success = recording.recorder is not None
-        elif request.data:
+        if request.data and recording.recorder is not None and recording.failed is None:
             response.success = True
             response.message = f"already recording to {recording.recorder.path}"
+        elif request.data:
+            prefix = ""
+            if recording.recorder is not None:          # failed while writing: finish it
+                prefix = recording.stop()[1] + "; "
+            started, text = self._start_recording(self.get_parameter("record_path").value)
+            response.success, response.message = started, prefix + text
         else:
-            response.message = recording.stop()
-            response.success = recording.error is None
+            response.success, response.message = recording.stop()
         return response
 
     # -- the stepping thread -----------------------------------------------------
@@ -530,7 +534,7 @@ class ClothLodNode(Node):
     def _now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
-    def _start_recording(self, path: str) -> str:
+    def _start_recording(self, path: str) -> tuple[bool, str]:
         params = {n: parameters.scene_value(self.get_parameter(n).value)    # JSON: no arrays
                   for n in self.list_parameters([], 0).names}
         return self.recording.start(path, self.sim, params,
@@ -567,7 +571,7 @@ class ClothLodNode(Node):
                       speed_warn=self.get_parameter("speed_warn").value,
                       real_time_factor=measured,
                       waiting_for_clock=self._waiting_for_clock,
-                      recording_failed=self.recording.status().startswith("failed"),
+                      recording_failed=self.recording.failed is not None,
                       paused=self.paused)
 
     def _publish(self) -> None:
