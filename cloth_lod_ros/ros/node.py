@@ -239,12 +239,20 @@ class ClothLodNode(Node):
     def _validate_parameters(self, params) -> SetParametersResult:
         """Validate a set of changes as a whole; refuse with the reason, keep old values."""
         result, scene, changes = parameters.validate(
-            params, lambda name: self.get_parameter(name).value, self._param_scene)
+            params, lambda name: self.get_parameter(name).value, self._param_scene,
+            self._descriptor)
         if result.successful and changes:
             if not self.queue.put_command("parameters", changes):
                 return SetParametersResult(successful=False, reason=self._busy())
             self._param_scene = scene
         return result
+
+    def _descriptor(self, name: str):
+        """The declared descriptor of ``name`` (None while it is being declared)."""
+        try:
+            return self.describe_parameter(name)
+        except ParameterNotDeclaredException:
+            return None
 
     def set_parameters_atomically(self, parameter_list):
         """rclpy's, counting a refused set in ``rejected_parameters`` wherever it
