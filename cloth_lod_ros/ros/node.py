@@ -304,17 +304,26 @@ class ClothLodNode(Node):
     def _on_pose(self, name: str, msg: PoseStamped, kind: str = "grasp") -> None:
         """A pose on ``<kind>/<name>/pose`` (kind ``grasp`` or ``obstacle``)."""
         self.poses_received += 1
+        topic = f"{kind}/{name}/pose"
         try:
-            if self.recording.recorder is not None:
-                self.recording.message(f"{kind}/{name}/pose", serialize_message(msg))
             p, q = msg.pose.position, msg.pose.orientation
             reason, position, orientation = judge_pose(
                 msg.header.frame_id, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w],
                 msg.header.stamp.sec, msg.header.stamp.nanosec, self._now_s(), self._limits)
+            # The bag takes accepted poses as received and rejected ones in a
+            # bounded form, both within the recording's input budget (bag/recorder.py).
+            if self.recording.recorder is not None:
+                if reason is None:
+                    self.recording.message(topic, serialize_message(msg))
+                else:
+                    self.recording.rejected(
+                        topic, reason, frame_id=msg.header.frame_id,
+                        stamp=[msg.header.stamp.sec, msg.header.stamp.nanosec],
+                        position=[p.x, p.y, p.z], orientation=[q.x, q.y, q.z, q.w])
         except Exception as exc:
             self.internal_errors += 1
             reason = "invalid"
-            self.get_logger().error(f"{kind}/{name}/pose: {exc!r}", throttle_duration_sec=5.0)
+            self.get_logger().error(f"{topic}: {exc!r}", throttle_duration_sec=5.0)
         if reason is not None:
             self.rejected[reason] += 1
             self.get_logger().warning(

@@ -13,7 +13,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ..bag.recorder import SessionRecorder
+from ..bag.recorder import INPUT_BYTES_PER_S, SessionRecorder
 from ..bag.rosbag import BagError
 
 __all__ = ["NodeRecording", "MAX_NAME_ATTEMPTS"]
@@ -37,8 +37,16 @@ def _taken(path: str) -> bool:
 
 
 def _dropped(recorder) -> str:
-    dropped = recorder.dropped_frames
-    return f" ({dropped} frames dropped: disk behind)" if dropped else ""
+    """What a bag left out, for ``status`` and the finishing line ('' if nothing)."""
+    parts = []
+    if recorder.dropped_frames:
+        parts.append(f"{recorder.dropped_frames} frames dropped: disk behind")
+    if recorder.dropped_messages:
+        parts.append(f"{recorder.dropped_messages} messages dropped: writer queue full")
+    if recorder.unrecorded:
+        parts.append(f"{recorder.unrecorded} received messages over the "
+                     f"{INPUT_BYTES_PER_S // 1000} kB/s input budget not recorded")
+    return f" ({'; '.join(parts)})" if parts else ""
 
 
 class NodeRecording:
@@ -145,6 +153,11 @@ class NodeRecording:
         recorder = self.recorder
         if recorder is not None:
             recorder.record_message(relative, data)
+
+    def rejected(self, relative: str, reason: str, **copy) -> None:
+        recorder = self.recorder
+        if recorder is not None:
+            recorder.record_rejected(relative, reason, **copy)
 
     def frame(self, frames: dict, time_ns: int) -> None:
         recorder = self.recorder
