@@ -447,8 +447,68 @@ def test_unwritable_record_path_is_reported_and_the_node_keeps_simulating(
         assert float(node.stat("sim_time_s")) > t0 + 0.5
         assert node.stat("recording").startswith("failed: cannot create the bag")
         assert node.stats[-1].status[0].level == DiagnosticStatus.WARN
+        # Issue 34: `false` answers the same way for the same state (nothing records),
+        # and clears the failure shown; `true` false true within a second never
+        # collide on a name.
+        first = node.call(SetBool, "cloth/record", SetBool.Request(data=False))
+        again = node.call(SetBool, "cloth/record", SetBool.Request(data=False))
+        assert first.success and first.message.startswith("not recording; cleared the failure")
+        assert again.success and again.message == "not recording"
+        assert node.spin_until(lambda: node.stat("recording") == "off", 20.0)
+        refused = node.call(SetBool, "cloth/record", SetBool.Request(data=True))
+        assert not refused.success and "cannot create the bag" in refused.message
     finally:
         assert node.stop() == 0
+
+
+FLOOD_S = float(os.environ.get("CLOTH_LOD_FLOOD_S", "5"))     # the issue's target: 20 s
+
+
+def test_a_pose_flood_with_huge_frame_ids_grows_the_bag_within_its_budget(observer, scene_file,
+                                                                          tmp_path):
+    """Issue 34: poses with 100 kB frame ids at 500/s from another process grew the bag
+    by 10 MB in 21 s (every rejected pose was written as received).  Now rejected
+    inputs are recorded bounded and received messages within INPUT_BYTES_PER_S: the
+    input topics of the bag stay within the budget over the recording's duration
+    (CLOTH_LOD_FLOOD_S=20 runs the issue's 20 s)."""
+    from cloth_lod_ros.bag.recorder import INPUT_BURST_BYTES, INPUT_BYTES_PER_S
+    bag = tmp_path / "flooded"
+    node = Running(observer, scene_file, f"record_path:={bag}", "record:=true")
+    try:
+        proc = driver(f"""
+            import os
+            send("hand", 0.5, 1.0, 1.0)                 # discovery
+            start = time.monotonic()
+            k = 0
+            while time.monotonic() - start < {FLOOD_S}:
+                send("hand", 0.5, 1.0, 1.0, frame=os.urandom(50_000).hex())  # incompressible
+                k += 1
+                time.sleep(max(0.0, start + k / 500 - time.monotonic()))
+            print("sent", k, flush=True)
+        """)
+        proc.wait(timeout=FLOOD_S + 60)
+        assert node.spin_until(lambda: int(node.stat("rejected_frame")) > 0, 20.0)
+        node.spin_for(1.0)
+        assert node.call(SetBool, "cloth/record", SetBool.Request(data=False)).success
+        rejected = int(node.stat("rejected_frame"))
+        assert int(node.stat("internal_errors")) == 0
+    finally:
+        assert node.stop() == 0
+    with BagReader(bag) as reader:
+        seconds = (reader.end_ns - reader.start_ns) / 1e9
+        inputs = [m for m in reader.messages(["/cloth/rejected", "/grasp/hand/pose"])]
+    recorded = sum(len(m.data) for m in inputs)
+    assert recorded <= INPUT_BURST_BYTES + INPUT_BYTES_PER_S * seconds, (recorded, seconds)
+    records = [json.loads(_string(m.data)) for m in inputs if m.topic == "/cloth/rejected"]
+    assert records and all(r["reason"] == "frame" and len(r["frame_id"]) < 100 for r in records)
+    # Every rejection is counted (lod_stats), recorded or not.
+    assert rejected >= len(records)
+    print(f"flood {FLOOD_S} s: {rejected} rejected, {len(records)} recorded, input topics "
+          f"{recorded} bytes over {seconds:.1f} s; bag {bag_bytes(bag)} bytes")
+
+
+def bag_bytes(path) -> int:
+    return sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file())
 
 
 def test_play_delivers_the_recorded_messages_in_order_to_another_process(

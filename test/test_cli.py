@@ -408,7 +408,10 @@ def _limited_cli(args, cwd, memory_bytes=1 << 30):
 def test_hostile_scene_files_are_refused_in_bounded_memory(tmp_path):
     """A YAML alias bomb (9^9 strings once expanded) used to run for a minute and take
     gigabytes; 100 000-deep nesting and a 400-digit integer ended in tracebacks.
-    Each must now be one line of error, exit 2, within 1 GB of address space."""
+    Each must now be one line of error, exit 2, within 1 GB of address space.  So must
+    the costly scenes of issue 34, which were within the per-field limits: a uniform
+    level-12 mesh (38 s, 646 MB), 2^21 triangles with LOD off (still running after
+    40 s), 50,000 waypoints (30 s) and 5,000 grasps (14.5 s)."""
     lines = ["name:", '  - &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
     lines += [f"  - &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, 9)]
     rest = "cloth: {width: 1, height: 1, base_blocks: [4, 4]}\n" \
@@ -421,14 +424,25 @@ def test_hostile_scene_files_are_refused_in_bounded_memory(tmp_path):
         "blocks.yaml": (rest.replace("[4, 4]", "[4000, 4000]").replace("1, height: 1",
                                                                          "4000, height: 4000"),
                         "'cloth.base_blocks'"),
+        "level12.yaml": (rest.replace("[4, 4]}", "[4, 4], level: 12}"),
+                         "the limit is 32,768 triangles at the start"),
+        "blocks32.yaml": (rest.replace("1, height: 1, base_blocks: [4, 4]}",
+                                       "32, height: 32, base_blocks: [32, 32], level: 10}")
+                          + "lod: {enabled: false}\n", "2,097,152 triangles"),
+        "waypoints.yaml": (rest + "pins: [{uv: [0, 0], waypoints: ["
+                           + ",".join(f"[{i}, 0, 0, 1]" for i in range(50_000)) + "]}]\n",
+                           "more than 50,000 values"),
+        "grasps.yaml": (rest + "grasps:\n" + "".join(
+            f"  - {{name: g{i}, uv: [{i % 100 / 100}, {i // 100 / 50}]}}\n" for i in range(5000)),
+                        "'grasps' has 5,000 entries"),
     }
     for name, (text, expected) in cases.items():
         (tmp_path / name).write_text(text)
         proc = _limited_cli(["run", name, "--no-png", "--quiet"], tmp_path)
-        # (The first line, printed before the scene is read, says whether the
-        # compiled kernels are loaded or compiled: test_startup.py.)
-        kernels, _, err = proc.stderr.partition("\n")
-        assert kernels.startswith("cloth-lod: preparing compiled kernels: "), proc.stderr[-2000:]
+        # `run` reads its scene before the line on the compiled kernels
+        # (test_startup.py) and before importing the simulator: the refusal is the
+        # only line.
+        err = proc.stderr
         assert proc.returncode == 2, (name, proc.stderr[-2000:])
         assert err.startswith("cloth-lod: scene error:"), (name, proc.stderr[-2000:])
         assert expected in err and len(err.splitlines()) == 1, proc.stderr

@@ -303,6 +303,9 @@ def test_every_refused_parameter_set_is_counted(running):
         {"material.bend_stiffness": -1.0},              # outside its declared range (rclpy)
         {"no_such_parameter": 1.0},                     # not declared (rclpy raises)
         {"lod.coarsen_threshold": 0.5},                 # above refine_threshold (the node)
+        # rclpy lets a value within 1e-6 (relative) of a range's end pass; the node
+        # enforces the declared maximum exactly (issue 34).
+        {"material.stretch_stiffness": 1e7 + 1},
     ]
     for values in refused:
         result = set_params(node, **values)

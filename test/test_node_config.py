@@ -28,7 +28,8 @@ def start_node(*ros_args, timeout=BAD_SCENE_TIMEOUT):
                           timeout=timeout)
 
 
-@pytest.mark.parametrize("case", ["missing", "syntax", "level", "directory", "aliases"])
+@pytest.mark.parametrize("case", ["missing", "syntax", "level", "directory", "aliases",
+                                  "budget"])
 def test_a_bad_scene_is_one_line_on_stderr_and_exit_code_2(tmp_path, case):
     scene, expected = {
         "missing": (tmp_path / "missing.yaml", "does not exist"),
@@ -36,7 +37,11 @@ def test_a_bad_scene_is_one_line_on_stderr_and_exit_code_2(tmp_path, case):
         "level": (tmp_path / "level.yaml", "'cloth.level'"),
         "directory": (tmp_path, "is a directory"),
         "aliases": (tmp_path / "aliases.yaml", "alias"),
+        "budget": (tmp_path / "budget.yaml", "the limit is 32,768 triangles at the start"),
     }[case]
+    (tmp_path / "budget.yaml").write_text(      # within every field's range, over the budget
+        "cloth: {width: 1, height: 1, base_blocks: [4, 4], level: 12}\n"
+        "simulation: {time_step: 0.02, duration: 1}\n")
     (tmp_path / "syntax.yaml").write_text("cloth: {width: 1.0, height: [1.0\n")
     (tmp_path / "level.yaml").write_text(
         "cloth: {width: 1, height: 1, base_blocks: [4, 4], level: 30}\n"

@@ -8,9 +8,22 @@
 * ``/cloth/inputs`` (std_msgs/String, JSON): every input *as the simulator
   applied it*, with the step count it was applied before: grasp targets,
   open/close, parameter changes, resets, pause/resume;
-* ``/grasp/<name>/pose`` (geometry_msgs/PoseStamped): the poses as received;
+* ``/grasp/<name>/pose``, ``/obstacle/<name>/pose`` (geometry_msgs/PoseStamped): the
+  poses the node accepted, as received;
+* ``/cloth/rejected`` (std_msgs/String, JSON): inputs the node rejected, in a bounded
+  form: where, why, and a truncated copy (:meth:`SessionRecorder.record_rejected`);
 * the node's four outputs (:class:`~cloth_lod_ros.messages.frames.FrameBuilder`),
   exactly as published.
+
+Received messages (accepted poses, rejected inputs) share a budget of
+:data:`INPUT_BYTES_PER_S` (a token bucket holding at most :data:`INPUT_BURST_BYTES`):
+a remote participant cannot make the bag grow faster, whatever it sends; what is over
+the budget is counted (:attr:`SessionRecorder.unrecorded`), not written, and the next
+rejected record says how many were left out before it.  Inputs as applied
+(``/cloth/inputs``) are bounded by the step rate (the newest target per grasp and
+obstacle, a bounded queue of commands) and never budgeted: replay needs each one.  The
+writer's queue holds at most :data:`MAX_QUEUED_BYTES`; beyond it messages are
+dropped and counted, and a warning says so.
 
 Log times never decrease (a clock step backwards is clamped), and MCAP readers
 break ties by file position, so log-time order is the order in which things
@@ -39,6 +52,15 @@ __all__ = ["SessionRecorder", "OUTPUT_TYPES", "SESSION_FORMAT"]
 log = logging.getLogger(__name__)
 
 SESSION_FORMAT = 1
+#: Bytes per second of received messages (accepted poses as received, records of
+#: rejected inputs) a bag takes, on average; a burst may take :data:`INPUT_BURST_BYTES`.
+#: A pose is about 100 bytes: a grasp driven at 100 Hz takes half of it.
+INPUT_BYTES_PER_S = 20_000
+INPUT_BURST_BYTES = 80_000
+#: Characters of a rejected input's text (its frame id) kept in its record.
+REJECTED_TEXT_CHARS = 64
+#: Most bytes waiting for the writer thread (a disk that stalls): beyond, dropped.
+MAX_QUEUED_BYTES = 64_000_000
 # Relative output topic -> (type, QoS as offered by the node's publishers).
 OUTPUT_TYPES = {
     "cloth/markers": ("visualization_msgs/msg/MarkerArray",
@@ -56,14 +78,51 @@ def package_version() -> str:
         return "source"
 
 
+class ByteBudget:
+    """A token bucket: ``rate`` bytes per second, at most ``burst`` at once.
+
+    Thread-safe; ``clock`` (s, monotonic) is injectable for tests."""
+
+    def __init__(self, rate: float, burst: float, clock=_time.monotonic):
+        self.rate, self.burst, self.clock = float(rate), float(burst), clock
+        self._tokens, self._last = float(burst), clock()
+        self._lock = threading.Lock()
+
+    def take(self, size: int) -> bool:
+        """Whether ``size`` bytes fit now (and take them if they do)."""
+        with self._lock:
+            now = self.clock()
+            self._tokens = min(self.burst, self._tokens + (now - self._last) * self.rate)
+            self._last = now
+            if size > self._tokens:
+                return False
+            self._tokens -= size
+            return True
+
+
+def _short(text: str, limit: int = REJECTED_TEXT_CHARS) -> str:
+    """``text`` cut to ``limit`` characters, saying how long it was."""
+    text = str(text)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} chars)"
+
+
+def _plain_number(value):
+    """A float JSON can carry (NaN and infinities as their names)."""
+    value = float(value)
+    return value if np.isfinite(value) else repr(value)
+
+
 class SessionRecorder:
     """Records a session to a bag; a failure stops recording, never the caller.
 
     Compression and file writes run on a background thread (zstandard and file
     I/O release the GIL), so the simulating thread only queues bytes.  If the
     disk cannot keep up and ``max_queued`` messages wait, further *output*
-    frames are dropped and counted in :attr:`dropped_frames`; inputs and the
-    session message are never dropped (replay needs every one of them).
+    frames are dropped and counted in :attr:`dropped_frames`; if
+    :data:`MAX_QUEUED_BYTES` wait, any message but the session's is dropped and
+    counted in :attr:`dropped_messages` (replay then reports what is missing).
+    Received messages are written within :data:`INPUT_BYTES_PER_S`
+    (:attr:`unrecorded` counts the rest).
 
     Args:
         path: bag directory (must not exist).
@@ -84,6 +143,12 @@ class SessionRecorder:
         self.path = self.writer.path
         self.failed: str | None = None
         self.dropped_frames = 0
+        self.dropped_messages = 0       # the queue was over MAX_QUEUED_BYTES
+        self.unrecorded = 0             # received messages over the input budget
+        self._unrecorded_reported = 0   # of those, already said in a rejected record
+        self.input_budget = ByteBudget(INPUT_BYTES_PER_S, INPUT_BURST_BYTES)
+        self._queued_bytes = 0
+        self._bytes_lock = threading.Lock()
         self._last_ns = 0
         # Inputs are recorded from the node's input threads, frames from its
         # stepping thread: log times and queue order are taken under one lock.
@@ -97,6 +162,8 @@ class SessionRecorder:
             self.writer.add_topic(self.topic("cloth/session"), "std_msgs/msg/String",
                                   qos_profiles_yaml(durability="transient_local", depth=1))
             self.writer.add_topic(self.topic("cloth/inputs"), "std_msgs/msg/String",
+                                  qos_profiles_yaml(depth=100))
+            self.writer.add_topic(self.topic("cloth/rejected"), "std_msgs/msg/String",
                                   qos_profiles_yaml(depth=100))
             for kind, names in (("grasp", grasp_names), ("obstacle", obstacle_names)):
                 for name in names:
@@ -113,6 +180,8 @@ class SessionRecorder:
             if item is None:
                 return
             topic, data, time_ns, flush = item
+            with self._bytes_lock:
+                self._queued_bytes -= len(data)
             if self.failed is not None:
                 continue
             try:
@@ -139,6 +208,15 @@ class SessionRecorder:
     def _write(self, relative: str, data: bytes, time_ns: int | None,
                flush: bool = False) -> None:
         if self.active:
+            with self._bytes_lock:
+                if (self._queued_bytes + len(data) > MAX_QUEUED_BYTES
+                        and relative != "cloth/session"):
+                    self.dropped_messages += 1
+                    if self.dropped_messages == 1 or self.dropped_messages % 1000 == 0:
+                        log.warning("recording: %d messages dropped, %d bytes wait for the "
+                                    "disk", self.dropped_messages, self._queued_bytes)
+                    return
+                self._queued_bytes += len(data)
             with self._order_lock:
                 self._queue.put((self.topic(relative), data, self._time(time_ns), flush))
 
@@ -170,10 +248,43 @@ class SessionRecorder:
         event.update(payload)
         self._write("cloth/inputs", serialize_message(String(data=json.dumps(event))), time_ns)
 
-    def record_message(self, relative: str, data: bytes, time_ns: int | None = None) -> None:
-        """Write a raw input message (e.g. a received grasp pose)."""
-        if self.topic(relative) in self.writer.topics:
-            self._write(relative, data, time_ns)
+    def record_message(self, relative: str, data: bytes, time_ns: int | None = None) -> bool:
+        """Write a raw input message (e.g. an accepted grasp pose) within the input
+        budget; returns whether it was written (else it is counted in :attr:`unrecorded`)."""
+        if self.topic(relative) not in self.writer.topics:
+            return False
+        if not self.input_budget.take(len(data)):
+            self.unrecorded += 1
+            return False
+        self._write(relative, data, time_ns)
+        return True
+
+    def record_rejected(self, relative: str, reason: str, time_ns: int | None = None,
+                        **copy) -> bool:
+        """Record a rejected input on ``/cloth/rejected`` within the input budget:
+        ``{"topic", "reason", "unrecorded_before", ...copy}`` with text cut to
+        :data:`REJECTED_TEXT_CHARS` and floats made JSON-safe (``copy``: e.g. the
+        pose's ``frame_id``, ``stamp``, ``position``, ``orientation``).  Returns
+        whether it was written (else counted in :attr:`unrecorded`)."""
+        event = {"topic": self.topic(relative), "reason": _short(reason),
+                 "unrecorded_before": self.unrecorded - self._unrecorded_reported}
+        for key, value in copy.items():
+            if isinstance(value, str):
+                value = _short(value)
+            elif isinstance(value, (list, tuple, np.ndarray)):
+                value = [_plain_number(v) for v in list(value)[:8]]
+            elif isinstance(value, (int, float)) and not isinstance(value, bool):
+                value = _plain_number(value) if isinstance(value, float) else int(value)
+            else:
+                value = _short(repr(value))
+            event[key] = value
+        data = serialize_message(String(data=json.dumps(event)))
+        if not self.input_budget.take(len(data)):
+            self.unrecorded += 1
+            return False
+        self._unrecorded_reported = self.unrecorded
+        self._write("cloth/rejected", data, time_ns)
+        return True
 
     def close(self) -> None:
         """Write what is queued, then finish the bag (summary and metadata.yaml)."""

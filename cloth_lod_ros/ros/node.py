@@ -239,12 +239,20 @@ class ClothLodNode(Node):
     def _validate_parameters(self, params) -> SetParametersResult:
         """Validate a set of changes as a whole; refuse with the reason, keep old values."""
         result, scene, changes = parameters.validate(
-            params, lambda name: self.get_parameter(name).value, self._param_scene)
+            params, lambda name: self.get_parameter(name).value, self._param_scene,
+            self._descriptor)
         if result.successful and changes:
             if not self.queue.put_command("parameters", changes):
                 return SetParametersResult(successful=False, reason=self._busy())
             self._param_scene = scene
         return result
+
+    def _descriptor(self, name: str):
+        """The declared descriptor of ``name`` (None while it is being declared)."""
+        try:
+            return self.describe_parameter(name)
+        except ParameterNotDeclaredException:
+            return None
 
     def set_parameters_atomically(self, parameter_list):
         """rclpy's, counting a refused set in ``rejected_parameters`` wherever it
@@ -296,17 +304,26 @@ class ClothLodNode(Node):
     def _on_pose(self, name: str, msg: PoseStamped, kind: str = "grasp") -> None:
         """A pose on ``<kind>/<name>/pose`` (kind ``grasp`` or ``obstacle``)."""
         self.poses_received += 1
+        topic = f"{kind}/{name}/pose"
         try:
-            if self.recording.recorder is not None:
-                self.recording.message(f"{kind}/{name}/pose", serialize_message(msg))
             p, q = msg.pose.position, msg.pose.orientation
             reason, position, orientation = judge_pose(
                 msg.header.frame_id, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w],
                 msg.header.stamp.sec, msg.header.stamp.nanosec, self._now_s(), self._limits)
+            # The bag takes accepted poses as received and rejected ones in a
+            # bounded form, both within the recording's input budget (bag/recorder.py).
+            if self.recording.recorder is not None:
+                if reason is None:
+                    self.recording.message(topic, serialize_message(msg))
+                else:
+                    self.recording.rejected(
+                        topic, reason, frame_id=msg.header.frame_id,
+                        stamp=[msg.header.stamp.sec, msg.header.stamp.nanosec],
+                        position=[p.x, p.y, p.z], orientation=[q.x, q.y, q.z, q.w])
         except Exception as exc:
             self.internal_errors += 1
             reason = "invalid"
-            self.get_logger().error(f"{kind}/{name}/pose: {exc!r}", throttle_duration_sec=5.0)
+            self.get_logger().error(f"{topic}: {exc!r}", throttle_duration_sec=5.0)
         if reason is not None:
             self.rejected[reason] += 1
             self.get_logger().warning(
@@ -342,17 +359,21 @@ class ClothLodNode(Node):
                             what="pause" if request.data else "resume")
 
     def _on_record(self, request, response):
+        """``true``: start a bag unless one is being written (a failed one is finished
+        first); ``false``: finish the bag, or (not recording) clear a failure shown.
+        The answers, state by state, are in docs/recording.md."""
         recording = self.recording
-        if request.data and recording.recorder is None:
-            response.message = self._start_recording(self.get_parameter("record_path").value
-                                                     if recording.error is None else "")
-            response.success = recording.recorder is not None
-        elif request.data:
+        if request.data and recording.recorder is not None and recording.failed is None:
             response.success = True
             response.message = f"already recording to {recording.recorder.path}"
+        elif request.data:
+            prefix = ""
+            if recording.recorder is not None:          # failed while writing: finish it
+                prefix = recording.stop()[1] + "; "
+            started, text = self._start_recording(self.get_parameter("record_path").value)
+            response.success, response.message = started, prefix + text
         else:
-            response.message = recording.stop()
-            response.success = recording.error is None
+            response.success, response.message = recording.stop()
         return response
 
     # -- the stepping thread -----------------------------------------------------
@@ -530,7 +551,7 @@ class ClothLodNode(Node):
     def _now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
-    def _start_recording(self, path: str) -> str:
+    def _start_recording(self, path: str) -> tuple[bool, str]:
         params = {n: parameters.scene_value(self.get_parameter(n).value)    # JSON: no arrays
                   for n in self.list_parameters([], 0).names}
         return self.recording.start(path, self.sim, params,
@@ -567,7 +588,7 @@ class ClothLodNode(Node):
                       speed_warn=self.get_parameter("speed_warn").value,
                       real_time_factor=measured,
                       waiting_for_clock=self._waiting_for_clock,
-                      recording_failed=self.recording.status().startswith("failed"),
+                      recording_failed=self.recording.failed is not None,
                       paused=self.paused)
 
     def _publish(self) -> None:

@@ -20,7 +20,7 @@ from ..sim.scene.config import SceneConfig, SceneError
 from ..sim.integrate.step_control import effective_tolerance
 
 __all__ = ["LIVE", "LIVE_CHOICES", "COLOUR_BY", "declare_parameters", "declare_scene_parameters",
-           "validate", "scene_value"]
+           "validate", "scene_value", "outside_declared_range"]
 
 # Live-tunable scene parameters: name -> (scene path, unit, low, high); low and
 # high None: a vector of 3 (m/s for the wind), validated by the scene.
@@ -94,7 +94,8 @@ def declare_parameters(node) -> None:
     node.declare_parameter("record", False, string(
         description="record the session to a bag from the start", read_only=True))
     node.declare_parameter("record_path", "", string(
-        description="bag directory; '' = bags/cloth_lod_<date>_<time>; must not exist",
+        description="bag directory; '' = bags/cloth_lod_<date>_<time>_<ms>; a name "
+                    "taken gets _2, _3, ... (a bag is never overwritten)",
         read_only=True))
     node.declare_parameter("record_compression", "zstd", string(
         description=f"MCAP chunk compression: {', '.join(COMPRESSIONS)}", read_only=True))
@@ -131,13 +132,30 @@ def scene_value(value):
     return list(value) if isinstance(value, (array.array, list, tuple)) else value
 
 
-def validate(params, current, scene: SceneConfig):
+def outside_declared_range(name: str, value, descriptor) -> str | None:
+    """Why ``value`` lies outside ``descriptor``'s floating-point range, or None.
+
+    rclpy accepts a value within a relative 1e-6 of either end
+    (``Node.PARAM_REL_TOL``: ``material.stretch_stiffness`` 1e7 + 1 passed a declared
+    maximum of 1e7); a declared range is meant exactly, so this checks it again."""
+    ranges = getattr(descriptor, "floating_point_range", None) or []
+    if not ranges or isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    low, high = sorted((ranges[0].from_value, ranges[0].to_value))
+    if low <= value <= high:
+        return None
+    return f"{name} must be within its declared range [{low!r}, {high!r}], got {value!r}"
+
+
+def validate(params, current, scene: SceneConfig, describe=None):
     """Check a set of parameter changes as a whole.
 
     Args:
         params: the rclpy ``Parameter`` objects being set.
         current: ``name -> value`` of the node's parameters now.
         scene: the scene the live scene changes apply to.
+        describe: ``name -> ParameterDescriptor`` (``Node.describe_parameter``):
+            declared floating-point ranges are enforced exactly.
 
     Returns:
         ``(SetParametersResult, scene after the changes, {scene path: value})``;
@@ -145,6 +163,10 @@ def validate(params, current, scene: SceneConfig):
     """
     changes = {}
     for p in params:
+        reason = describe is not None and outside_declared_range(p.name, p.value,
+                                                                 describe(p.name))
+        if reason:
+            return SetParametersResult(successful=False, reason=reason), scene, {}
         if p.name == "use_sim_time" and p.value != current("use_sim_time"):
             # Switching it live makes rclpy create or destroy its /clock
             # subscription while the multi-threaded executor may be using it

@@ -11,11 +11,42 @@ the simulation goes on.
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
-from ..bag.recorder import SessionRecorder
+from ..bag.recorder import INPUT_BYTES_PER_S, SessionRecorder
 from ..bag.rosbag import BagError
 
-__all__ = ["NodeRecording"]
+__all__ = ["NodeRecording", "MAX_NAME_ATTEMPTS"]
+
+#: Numbered names tried after an existing one (``NAME_2`` ... ``NAME_100``).
+MAX_NAME_ATTEMPTS = 100
+
+
+def _dated_name() -> str:
+    """``bags/cloth_lod_<date>_<time>_<milliseconds>`` (local time)."""
+    now = time.time()
+    return time.strftime("bags/cloth_lod_%Y%m%d_%H%M%S", time.localtime(now)) + \
+        f"_{int(now * 1000) % 1000:03d}"
+
+
+def _taken(path: str) -> bool:
+    """Whether a bag may not be written at ``path`` (it exists, and is not an empty
+    directory: the rule of :class:`~cloth_lod_ros.bag.rosbag.BagWriter`)."""
+    p = Path(path)
+    return p.exists() and not (p.is_dir() and not any(p.iterdir()))
+
+
+def _dropped(recorder) -> str:
+    """What a bag left out, for ``status`` and the finishing line ('' if nothing)."""
+    parts = []
+    if recorder.dropped_frames:
+        parts.append(f"{recorder.dropped_frames} frames dropped: disk behind")
+    if recorder.dropped_messages:
+        parts.append(f"{recorder.dropped_messages} messages dropped: writer queue full")
+    if recorder.unrecorded:
+        parts.append(f"{recorder.unrecorded} received messages over the "
+                     f"{INPUT_BYTES_PER_S // 1000} kB/s input budget not recorded")
+    return f" ({'; '.join(parts)})" if parts else ""
 
 
 class NodeRecording:
@@ -37,18 +68,30 @@ class NodeRecording:
         self.error: str | None = None
 
     def start(self, path: str, sim, parameters: dict, grid_resolution: int,
-              time_ns: int) -> str:
-        """Open a bag at ``path`` ('' = a dated name); returns what to tell the caller."""
-        if not path:
-            path = time.strftime("bags/cloth_lod_%Y%m%d_%H%M%S")
-        try:
-            recorder = SessionRecorder(path, self.namespace, self.compression,
-                                       grasp_names=self.grasp_names,
-                                       obstacle_names=self.obstacle_names)
-        except BagError as exc:
-            self.error = str(exc)
-            self.logger.error(f"recording not started: {exc}")
-            return self.error
+              time_ns: int) -> tuple[bool, str]:
+        """Open a bag at ``path`` ('' = a dated name); returns (started, what to tell
+        the caller).  A new bag clears the failure of an earlier one; an existing
+        path is never overwritten: the name gets a counter (``_2``, ``_3``, ...)."""
+        base = path or _dated_name()
+        recorder, error = None, None
+        for attempt in range(1, MAX_NAME_ATTEMPTS + 1):
+            candidate = base if attempt == 1 else f"{base.rstrip('/')}_{attempt}"
+            if _taken(candidate):
+                continue
+            try:
+                recorder = SessionRecorder(candidate, self.namespace, self.compression,
+                                           grasp_names=self.grasp_names,
+                                           obstacle_names=self.obstacle_names)
+                break
+            except BagError as exc:
+                error = str(exc)
+                if not _taken(candidate):       # not a race for the name: give up
+                    break
+        if recorder is None:
+            self.error = error or (f"{base} and {MAX_NAME_ATTEMPTS - 1} numbered names "
+                                   "after it exist; a bag is never overwritten")
+            self.logger.error(f"recording not started: {self.error}")
+            return False, f"recording not started: {self.error}"
         self.error = None
         if sim.step_count:
             self.logger.warning(
@@ -57,36 +100,49 @@ class NodeRecording:
         recorder.start(sim, parameters, grid_resolution, time_ns)
         self.recorder = recorder
         self.logger.info(f"recording to {recorder.path}")
-        return f"recording to {recorder.path}"
+        return True, f"recording to {recorder.path}"
 
-    def stop(self) -> str:
-        """Finish the bag (summary and ``metadata.yaml``); returns what to tell the caller."""
+    def stop(self) -> tuple[bool, str]:
+        """Finish the bag (summary and ``metadata.yaml``); returns (whether the
+        state is now a good one, what to tell the caller).
+
+        Recording: the bag is finished; ``False`` if it failed (the failure stays in
+        :meth:`status` until a new bag starts or ``stop`` is called again).  Not
+        recording: ``True`` always, and a failure shown is cleared."""
         recorder, self.recorder = self.recorder, None
         if recorder is None:
-            return "not recording"
+            cleared, self.error = self.error, None
+            return True, ("not recording" if cleared is None else
+                          f"not recording; cleared the failure: {cleared}")
         recorder.close()
         if recorder.failed:
             self.error = recorder.failed
-            return f"recording failed: {recorder.failed}"
-        text = f"recording finished: {recorder.writer.message_count} messages, {recorder.path}"
+            return False, f"recording failed: {recorder.failed} (bag {recorder.path} kept)"
+        text = (f"recording finished: {recorder.writer.message_count} messages, "
+                f"{recorder.path}{_dropped(recorder)}")
         if self.context_ok():        # no ROS logging once the context is shut down
             self.logger.info(text)
         else:
             print(f"[cloth_lod_node] {text}", flush=True)
-        return text
+        return True, text
 
-    def status(self) -> str:
-        """``off``, ``on: PATH`` (with dropped frames) or ``failed: REASON``."""
+    @property
+    def failed(self) -> str | None:
+        """Why the recording failed (the bag being written, or the last one), or None."""
         recorder = self.recorder
         if recorder is not None and recorder.failed:
-            self.error = recorder.failed
-        if self.error is not None:
-            return f"failed: {self.error}"
+            return recorder.failed
+        return self.error
+
+    def status(self) -> str:
+        """``off``, ``on: PATH`` (with what was dropped) or ``failed: REASON``."""
+        failed = self.failed
+        if failed is not None:
+            return f"failed: {failed}"
+        recorder = self.recorder
         if recorder is None:
             return "off"
-        dropped = recorder.dropped_frames
-        return f"on: {recorder.path}" + (f" ({dropped} frames dropped: disk behind)"
-                                         if dropped else "")
+        return f"on: {recorder.path}{_dropped(recorder)}"
 
     def input(self, sim, kind: str, time_ns: int, **payload) -> None:
         recorder = self.recorder
@@ -97,6 +153,11 @@ class NodeRecording:
         recorder = self.recorder
         if recorder is not None:
             recorder.record_message(relative, data)
+
+    def rejected(self, relative: str, reason: str, **copy) -> None:
+        recorder = self.recorder
+        if recorder is not None:
+            recorder.record_rejected(relative, reason, **copy)
 
     def frame(self, frames: dict, time_ns: int) -> None:
         recorder = self.recorder

@@ -146,7 +146,7 @@ def _self_collision_line(sim: ClothSim) -> list[str]:
 
 
 def _cmd_run(args) -> int:
-    from ..sim import ClothSim, SimulationError, load_scene
+    from ..sim.scene.config import load_scene
     overrides = list(args.set or [])
     if args.dt is not None:
         overrides.append(f"simulation.time_step={args.dt}")
@@ -154,7 +154,9 @@ def _cmd_run(args) -> int:
         overrides.append(f"cloth.level={args.level}")
     if args.duration is not None:
         overrides.append(f"simulation.duration={args.duration}")
-    scene = load_scene(args.scene, overrides)
+    scene = load_scene(args.scene, overrides)     # a scene over budget: refused in < 1 s
+    _announce_pending()
+    from ..sim import ClothSim, SimulationError
     live = None
     if args.foxglove is not None:       # before the simulator: a viewer can connect while it builds
         from ..live.run import LiveRun
@@ -362,7 +364,11 @@ def _cmd_play(args) -> int:
     return play(args.bag, rate=args.rate, loop=args.loop, topics=args.topics, delay=args.delay)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``cloth-lod`` parser.  With ``command``, the options of the other
+    commands that live in their own modules (``view``, ``bench``, ``stress``,
+    ``sweep``: each imports the simulator) are left out, so that ``run`` reads
+    and checks its scene without waiting for those imports."""
     parser = argparse.ArgumentParser(prog="cloth-lod", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="simulate a scene headless and save the final state")
@@ -461,15 +467,26 @@ def build_parser() -> argparse.ArgumentParser:
             ("stress", "stress", "hard-case stability suite: one table, pass/fail"),
             ("sweep", "sweep", "many runs of a scene (grids, lists, random draws) on Dask: "
                                "one folder per run and one table")):
-        module = importlib.import_module(f"cloth_lod_ros.tools.{module_name}")
-        command = sub.add_parser(name, help=text)
-        module.add_arguments(command)
-        command.set_defaults(func=module.run)
+        subparser = sub.add_parser(name, help=text)
+        if command is None or command == name:
+            module = importlib.import_module(f"cloth_lod_ros.tools.{module_name}")
+            module.add_arguments(subparser)
+            subparser.set_defaults(func=module.run)
     return parser
 
 
 #: Commands that build a simulator, and so need the compiled kernels.
 SIMULATING = ("run", "compare", "bench", "stress", "replay", "view")
+#: Of these, those that check their scene before the kernel line (a refused scene
+#: prints one line only and never waits for numba's imports).
+SCENE_FIRST = ("run",)
+_pending: list = []
+
+
+def _announce_pending() -> None:
+    """Print the kernel line that :func:`main` deferred, if any."""
+    while _pending:
+        _pending.pop()()
 
 
 def _simulates(argv: list[str]) -> bool:
@@ -491,9 +508,13 @@ def main(argv: list[str] | None = None) -> int:
         argv = sys.argv[1:]
         if _simulates(argv):
             from ..ros.startup import announce
-            announce("cloth-lod")
+            if [a for a in argv if not a.startswith("-")][0] in SCENE_FIRST:
+                _pending.append(lambda: announce("cloth-lod"))
+            else:
+                announce("cloth-lod")
     logging.basicConfig(level=logging.WARNING, format="cloth-lod: %(levelname)s: %(message)s")
-    args = build_parser().parse_args(argv)
+    words = [a for a in argv if not a.startswith("-")]
+    args = build_parser(words[0] if words and words[0] in SCENE_FIRST else None).parse_args(argv)
     from ..bag.rosbag import BagError
     from ..sim.scene.config import SceneError
     try:

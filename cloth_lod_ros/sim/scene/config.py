@@ -11,8 +11,10 @@ names the field by its dotted path (``material.density``).
 Scene files are input from anywhere, so loading is also bounded: a file of at
 most :data:`MAX_SCENE_BYTES`, no YAML aliases (``*name``: scene files do not
 need them, and nested aliases expand exponentially), nesting at most
-:data:`MAX_NESTING` deep, numbers that fit their field, and a finest mesh of at
-most :data:`MAX_TRIANGLES` triangles.  Error messages quote values shortened.
+:data:`MAX_NESTING` deep, numbers that fit their field, a finest mesh of at
+most :data:`MAX_TRIANGLES` triangles, and a start within the cost budget of
+:mod:`~cloth_lod_ros.sim.scene.budget` (start mesh, first step's work, counts of
+pins, grasps, obstacles and waypoints).  Error messages quote values shortened.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any
 
+from . import budget as _budget
 from .bounded_yaml import MAX_NESTING, MAX_SCENE_BYTES, SceneError
 from .bounded_yaml import load_yaml as _load_yaml
 from .bounded_yaml import shorten as _show
@@ -446,7 +449,13 @@ def _build(cls, data: Any, path: str):
 
 
 def scene_from_dict(data: Any) -> SceneConfig:
-    """Validate a parsed scene mapping and build a :class:`SceneConfig`."""
+    """Validate a parsed scene mapping and build a :class:`SceneConfig`.
+
+    Raises:
+        SceneError: a field is invalid, or the scene exceeds the cost budget
+            (:func:`~cloth_lod_ros.sim.scene.budget.check`).
+    """
+    _budget.check_counts(data)          # before converting thousands of entries
     scene = _build(SceneConfig, data, "")
     cloth = scene.cloth
     triangles = 2 * cloth.base_blocks[0] * cloth.base_blocks[1] * 2 ** cloth.level
@@ -515,6 +524,7 @@ def scene_from_dict(data: Any) -> SceneConfig:
                 raise SceneError(f"field 'pins[{i}].radius': its patch overlaps that of "
                                  f"pins[{j}] (centres {math.dist(pin.uv, other.uv):.4g} m "
                                  f"apart, radii {other.radius} + {pin.radius} m)")
+    _budget.check(scene)
     return scene
 
 

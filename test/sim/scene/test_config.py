@@ -149,7 +149,7 @@ def test_override_through_a_non_section_is_refused():
        level=st.integers(min_value=0, max_value=12))
 def test_overrides_take_any_valid_value(density, level):
     raw = apply_overrides(valid_scene(), [f"material.density={density!r}",
-                                          f"cloth.level={level}"])
+                                          f"cloth.level={level}", "lod.enabled=true"])
     scene = scene_from_dict(raw)
     assert scene.material.density == density
     assert scene.cloth.level == level
@@ -431,11 +431,13 @@ def test_mesh_size_is_capped(tmp_path):
     assert f"{MAX_TRIANGLES:,}" in str(info.value)
     with pytest.raises(SceneError, match="'cloth.level'"):
         load_scene(BUILTIN, ["cloth.base_blocks=[4000, 4000]"])
-    # Exactly at the limit is allowed (validated only, not built); one level more is not.
-    data["cloth"].update(width=1024.0, height=1024.0, base_blocks=[1024, 1024], level=0)
-    assert 2 * 1024 * 1024 == MAX_TRIANGLES
-    assert scene_from_dict(data).cloth.base_blocks == (1024, 1024)
-    data["cloth"]["level"] = 1
+    # Exactly at the limit is allowed as LOD's finest mesh (the start is coarse:
+    # test_budget.py); one level more is not.
+    data["cloth"].update(width=32.0, height=32.0, base_blocks=[32, 32], level=10)
+    data["lod"] = {"enabled": True}
+    assert 2 * 32 * 32 * 2 ** 10 == MAX_TRIANGLES
+    assert scene_from_dict(data).cloth.base_blocks == (32, 32)
+    data["cloth"]["level"] = 11
     with pytest.raises(SceneError, match="triangles"):
         scene_from_dict(data)
 
@@ -450,7 +452,7 @@ def test_scene_files_over_the_size_limit_are_refused_unread(tmp_path):
 
 def test_error_messages_quote_big_values_shortened(tmp_path):
     data = yaml.safe_load(MINIMAL)
-    data["name"] = list(range(100_000))
+    data["name"] = list(range(20_000))
     with pytest.raises(SceneError, match="'name' must be a string") as info:
         load_scene(write(tmp_path, data))
     assert len(str(info.value)) < 300
@@ -496,6 +498,7 @@ def scenes(draw):
     data["cloth"].update(width=side * bu, height=side * bv, base_blocks=[bu, bv],
                          level=draw(st.integers(0, 12)), u_axis=u, v_axis=v,
                          origin=[draw(finite) for _ in range(3)])
+    data["lod"] = {"enabled": True}     # a coarse start, within the budget at any level
     data["material"]["density"] = draw(st.floats(min_value=1e-3, max_value=10))
     data["pins"] = [{"uv": [0.0, 0.0]},
                     {"name": "far", "uv": [data["cloth"]["width"], data["cloth"]["height"]],
