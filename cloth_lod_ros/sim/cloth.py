@@ -438,6 +438,11 @@ class ClothSim(HeldInputs, ObstacleInputs):
         """
         lookahead = (self.scene.lod.check_interval - 1) * self.time_step
         sc, own = self.self_collision, self.scene.self_collision
+        # Self-collision matters to the mesh only where layers were close in
+        # the last step's broad phase; elsewhere it is as if off (no layers to
+        # keep detail at, no split particle to move out of one).
+        if sc is not None and sc.apart(len(self.vertex_ids)):
+            sc = None
         total_splits = total_merges = 0
         recheck = None      # after a round: its merged edges (the next one re-checks)
         # Rounds after the first run on the pools, adopting once, after the last
