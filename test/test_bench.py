@@ -324,8 +324,8 @@ def test_scene_table_times_every_case_and_pairs_self_collision_with_its_base(tmp
         assert all(0.0 <= s <= 1.0 for s in shares) and sum(shares) <= 1.0 + 1e-9
         assert row["real_time_factor"] == pytest.approx(
             1e3 * row["frame_period_s"] / row["ms_per_frame"])
-        if case.scene == "hang_two_corners":          # its scene file leaves it off
-            enabled = "self_collision.enabled=true" in case.overrides
+        if case.scene == "hang_two_corners":          # its scene file leaves it at auto: on
+            enabled = "self_collision.enabled=false" not in case.overrides
             assert (row["self_collision_share"] > 0.0) == enabled
         if case.vs is None:
             assert row["ratio_to_vs"] is None

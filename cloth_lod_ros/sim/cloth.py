@@ -31,7 +31,8 @@ import time as _time
 import numpy as np
 
 from .runtime.blas_threads import one_blas_thread
-from .scene.config import SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict
+from .scene.config import (SceneConfig, SceneError, load_scene, scene_from_dict, scene_to_dict,
+                           self_collision_on)
 from .contact.contacts import nearest_surface
 from .physics.elements import Elements
 from .physics.air import air_power
@@ -170,9 +171,15 @@ class ClothSim(HeldInputs, ObstacleInputs):
         # live) and grasps.  A scene without obstacles never evaluates contact code.
         self._make_obstacles()
         self.solver.friction_rounds = scene.contact.friction_rounds
-        # Self-collision only when enabled: otherwise no code of it runs.
+        # Self-collision only when on (enabled, or auto where its thickness
+        # fits the finest mesh): otherwise no code of it runs.  On, it costs
+        # one broad-phase question a step until two layers come close.
         self.self_collision = (SelfCollision(scene.self_collision)
-                               if scene.self_collision.enabled else None)
+                               if self_collision_on(scene) else None)
+        if self.self_collision is None and scene.self_collision.enabled == "auto":
+            log.info("self-collision off: twice self_collision.thickness (%g m) does not fit "
+                     "between neighbouring particles of the finest mesh",
+                     scene.self_collision.thickness)
         if self.self_collision is not None:
             self.self_collision.set_topology(self.elements.triangles, self.mesh.uv)
         self.stepper = TimeStepper(self.solver, scene.simulation, self.obstacles,
@@ -431,6 +438,11 @@ class ClothSim(HeldInputs, ObstacleInputs):
         """
         lookahead = (self.scene.lod.check_interval - 1) * self.time_step
         sc, own = self.self_collision, self.scene.self_collision
+        # Self-collision matters to the mesh only where layers were close in
+        # the last step's broad phase; elsewhere it is as if off (no layers to
+        # keep detail at, no split particle to move out of one).
+        if sc is not None and sc.apart(len(self.vertex_ids)):
+            sc = None
         total_splits = total_merges = 0
         recheck = None      # after a round: its merged edges (the next one re-checks)
         # Rounds after the first run on the pools, adopting once, after the last

@@ -43,7 +43,7 @@ from .mesh import hierarchy
 from .inputs import holding_kernels
 from .runtime import compiled
 from .solve import multigrid_kernels, pattern_kernels, projection_kernels
-from .scene.config import SceneConfig, load_scene
+from .scene.config import SceneConfig, load_scene, self_collision_on
 from .solve.backends import available_methods, make_solver
 
 __all__ = ["KernelGroup", "GROUPS", "plan", "warm_up_compiled_code", "HEARTBEAT"]
@@ -83,7 +83,7 @@ def _multigrid(scene: SceneConfig) -> bool:
 def _contact(scene: SceneConfig) -> bool:
     """Contact rounds on one block factorisation (:mod:`cloth_lod_ros.sim.solve.trailing_ldl`): a
     direct block solver and something to touch."""
-    return _block_ldl(scene) and bool(scene.obstacles or scene.self_collision.enabled)
+    return _block_ldl(scene) and bool(scene.obstacles or self_collision_on(scene))
 
 
 def _tiny_step(scene: SceneConfig, simulator: type) -> None:
@@ -91,7 +91,7 @@ def _tiny_step(scene: SceneConfig, simulator: type) -> None:
     self-collision): what a step calls that no group's kernels cover."""
     tiny = simulator(load_scene("hang_two_corners", [
         "cloth.level=2", f"lod.enabled={str(scene.lod.enabled).lower()}",
-        f"self_collision.enabled={str(scene.self_collision.enabled).lower()}",
+        f"self_collision.enabled={str(self_collision_on(scene)).lower()}",
         f"solver.method={scene.solver.method}"]))
     tiny.step()
     tiny.step()
@@ -143,13 +143,13 @@ GROUPS = (
     KernelGroup("round", "LOD round kernels", 5.0, _lod, lambda s, sim: round_kernels.warm_up()),
     KernelGroup("compact", "compact mesh and held patch kernels", 1.5,
                 lambda s: s.lod.enabled or bool(s.grasps), lambda s, sim: holding_kernels.warm_up()),
-    KernelGroup("self", "self-collision kernels", 26.0, lambda s: s.self_collision.enabled,
+    KernelGroup("self", "self-collision kernels", 26.0, self_collision_on,
                 lambda s, sim: self_broad_kernels.warm_up()),
     KernelGroup("multigrid", "multigrid kernels", 5.5, _multigrid,
                 lambda s, sim: multigrid_kernels.warm_up()),
     KernelGroup("trailing", "contact round (trailing LDL) kernels", 10.5, _contact, _trailing),
     KernelGroup("step", "step kernels (forces, assembly, linear solver)", 9.5, _always,
-                _tiny_step, variant=lambda s: (s.lod.enabled, s.self_collision.enabled,
+                _tiny_step, variant=lambda s: (s.lod.enabled, self_collision_on(s),
                                                s.solver.method)),
 )
 

@@ -24,7 +24,7 @@ import pytest
 
 from cloth_lod_ros.sim import warm_up
 from cloth_lod_ros.sim.runtime import compiled
-from cloth_lod_ros.sim.scene.config import load_scene
+from cloth_lod_ros.sim.scene.config import load_scene, self_collision_on
 
 pytestmark = pytest.mark.skipif(not compiled.available, reason="numba not installed")
 
@@ -85,11 +85,11 @@ def test_a_scene_compiles_nothing_after_its_warm_up_and_only_what_it_needs(scene
     result = _run(scene, overrides, steps)
     assert result["new"] == {}, result["new"]
     config = load_scene(scene, overrides)
-    assert ("self_broad_kernels" in result["modules"]) == config.self_collision.enabled
+    assert ("self_broad_kernels" in result["modules"]) == self_collision_on(config)
     assert "multigrid_kernels" not in result["modules"]             # small cloths: direct
     assert ("hierarchy_kernels" in result["modules"]) == config.lod.enabled
     planned = set(result["planned"])
-    assert ("trailing" in planned) == bool(config.obstacles or config.self_collision.enabled)
+    assert ("trailing" in planned) == bool(config.obstacles or self_collision_on(config))
 
 
 def test_plans_follow_the_scene():
@@ -98,12 +98,13 @@ def test_plans_follow_the_scene():
     def names(*overrides):
         return {g.name for g in warm_up.GROUPS if g.needed(load_scene("hang_two_corners",
                                                                          list(overrides)))}
-    default = names()
+    default = names("self_collision.enabled=false")
+    assert names() == names("self_collision.enabled=auto") == names("self_collision.enabled=true")
     assert {"topology", "pattern", "projection", "step"} <= default
     assert not {"self", "multigrid", "trailing"} & default
     assert names("self_collision.enabled=true") - default == {"self", "trailing"}
-    assert names("solver.method=multigrid") - default == {"multigrid"}
-    assert default - names("lod.enabled=false") == {"hierarchy", "lod", "check", "round",
+    assert names("self_collision.enabled=false", "solver.method=multigrid") - default == {"multigrid"}
+    assert default - names("self_collision.enabled=false", "lod.enabled=false") == {"hierarchy", "lod", "check", "round",
                                                     "compact"}
     # Uniform level 8 (4 x 4 blocks: 65 x 65 = 4,225 particles) is above auto's
     # direct limit: auto may switch to multigrid, so it is prepared.
@@ -115,7 +116,7 @@ def test_a_later_simulator_prepares_what_it_adds():
     """The process's second simulator, with self-collision on, prepares the
     self-collision group when it is built: its first step then compiles nothing."""
     code = RUN.replace("sim = ClothSim(load_scene(scene, overrides))",
-                       "ClothSim(load_scene('hang_two_corners'))\n"
+                       "ClothSim(load_scene('hang_two_corners', ['self_collision.enabled=false']))\n"
                        "first = signatures()\n"
                        "sim = ClothSim(load_scene(scene, overrides))")
     code = code.replace('print(json.dumps({"new"',

@@ -454,6 +454,16 @@ class SelfCollision:
         return x, v, int(stopped.sum()), clean
 
     # -- level of detail ----------------------------------------------------------
+    def apart(self, n: int) -> bool:
+        """Whether the last broad phase (the last step's, over its whole motion,
+        on the current ``n`` particles) found no cell that may hold two layers:
+        then no layer was within its padding (at least twice the thickness) of
+        another, so nothing is near, and a particle a split makes on an edge
+        (inside the boxes of its triangles) cannot start inside another layer.
+        False when there is no such search (a new topology)."""
+        last = self._cache
+        return last is not None and not last["layered"] and len(last["lo"]) == n
+
     def near(self, x: np.ndarray, distance: float) -> np.ndarray:
         """``(n,)`` bool: particles within ``distance`` m of a triangle they are
         not a corner of (another layer), or corners of such a triangle.

@@ -42,7 +42,7 @@ __all__ = [
     "ObstacleConfig", "ContactConfig", "GraspConfig", "SelfCollisionConfig",
     "SimulationConfig", "SolverConfig", "SceneConfig",
     "load_scene", "scene_from_dict", "scene_to_dict", "apply_overrides",
-    "find_scene_file", "builtin_scene_names", "scenes_directory",
+    "find_scene_file", "builtin_scene_names", "scenes_directory", "self_collision_on",
     "MAX_SCENE_BYTES", "MAX_NESTING", "MAX_TRIANGLES", "MAX_INTEGER",
 ]
 
@@ -183,7 +183,10 @@ class ContactConfig:
 class SelfCollisionConfig:
     """The cloth kept from passing through itself (design §3, "Self-collision")."""
 
-    enabled: bool = _spec("bool", default=False, doc="keep layers of the cloth apart")
+    enabled: bool | str = _spec("auto_bool", default="auto",
+                                doc="keep layers of the cloth apart: true, false, or auto "
+                                    "(on where the thickness fits the finest mesh; the "
+                                    "contact work runs only where layers come close)")
     thickness: float = _spec("float", "m", gt=0, default=0.004,
                              doc="distance kept between layers of the cloth")
     friction: float = _spec("float", "", ge=0, default=0.0,
@@ -362,6 +365,10 @@ def _convert(value: Any, meta: dict, path: str, section_type=None):
         # would not round-trip.
         out = vec if abs(norm - 1.0) <= 4 * sys.float_info.epsilon else tuple(
             c / norm for c in vec)
+    elif kind == "auto_bool":
+        if not isinstance(value, bool) and value != "auto":
+            raise SceneError(f"field '{path}' must be true, false or auto, got {_show(value)}")
+        return value
     elif kind == "bool":
         if not isinstance(value, bool):
             raise SceneError(f"field '{path}' must be true or false, got {_show(value)}")
@@ -448,6 +455,29 @@ def _build(cls, data: Any, path: str):
     return cls(**kwargs)
 
 
+def _layer_gap(cloth: ClothConfig) -> float:
+    """Distance (m) from a particle of the finest flat 4-8 mesh to the nearest
+    particle that is not a corner of a triangle it is on: leg/sqrt(2), leg =
+    block side / 2^(level/2)."""
+    side = cloth.width / cloth.base_blocks[0]
+    return side / 2 ** (cloth.level / 2) / math.sqrt(2.0)
+
+
+def _thickness_fits(thickness: float, gap: float) -> bool:
+    """Whether the contact band (2 x thickness) fits between neighbouring
+    particles ``gap`` m apart, or the flat cloth would be in contact with itself."""
+    return 2.0 * thickness < 0.9 * gap
+
+
+def self_collision_on(scene: "SceneConfig") -> bool:
+    """Whether the scene runs self-collision: ``enabled: true``, or ``auto``
+    where its thickness fits the finest mesh (:func:`_thickness_fits`)."""
+    own = scene.self_collision
+    if own.enabled == "auto":
+        return _thickness_fits(own.thickness, _layer_gap(scene.cloth))
+    return bool(own.enabled)
+
+
 def scene_from_dict(data: Any) -> SceneConfig:
     """Validate a parsed scene mapping and build a :class:`SceneConfig`.
 
@@ -481,13 +511,9 @@ def scene_from_dict(data: Any) -> SceneConfig:
         raise SceneError(f"field 'lod.initial_level' ({lod.initial_level}) must not exceed "
                          f"'cloth.level' ({cloth.level}), the maximum level with LOD on")
     own = scene.self_collision
-    if own.enabled:
-        # The nearest particle of a flat 4-8 mesh that is not a triangle's
-        # corner is leg/sqrt(2) from it (leg = block side / 2^(level/2)):
-        # the contact band (2 x thickness) must fit inside, or the flat cloth
-        # would be in contact with itself.
-        gap = side_u / 2 ** (cloth.level / 2) / math.sqrt(2.0)
-        if 2.0 * own.thickness >= 0.9 * gap:
+    if own.enabled is True:
+        gap = _layer_gap(cloth)
+        if not _thickness_fits(own.thickness, gap):
             raise SceneError(f"field 'self_collision.thickness' ({own.thickness} m) must be "
                              f"below {0.45 * gap:.3g} m: twice it must fit between "
                              f"neighbouring layers of the finest mesh ({gap:.3g} m apart)")

@@ -8,7 +8,10 @@ position intersect exactly when an edge of one crosses the other, so every
 (edge, triangle) pair that shares no vertex is tested with signed volumes
 (the segment's ends strictly on opposite sides of the triangle's plane, and
 the segment's line passing strictly inside the three edges).  Touching and
-exactly coplanar configurations do not count.  The broad phase is a k-d tree
+coplanar configurations do not count: a signed volume within the rounding
+bound of its own evaluation counts as zero (cloth lying flat on a floor has
+whole regions in one plane, where the signs of the rounded volumes are noise
+and crossed "pairs" would be found between triangles that do not overlap).  The broad phase is a k-d tree
 (scipy) on edge midpoints and triangle centroids with one radius: the
 largest edge half-length plus the largest centroid-to-corner distance.
 
@@ -23,9 +26,22 @@ from scipy.spatial import cKDTree
 __all__ = ["intersecting_pairs"]
 
 
-def _orient(a, b, c, d) -> np.ndarray:
-    """Six times the signed volume of tetrahedra ``abcd`` (all ``(k, 3)``)."""
-    return np.einsum("kd,kd->k", np.cross(b - a, c - a), d - a)
+_EPS = float(np.finfo(float).eps)
+
+
+def _orient(a, b, c, d, size: float) -> np.ndarray:
+    """Six times the signed volume of tetrahedra ``abcd`` (all ``(k, 3)``, m),
+    m³, set to 0 where its magnitude is within the rounding bound of its
+    evaluation: each difference ``b − a`` carries an error up to
+    ``eps·size`` per component (``size`` m, the largest coordinate), which
+    the triple product multiplies by the other two lengths (a bound with a
+    factor 8 of margin, far below any real crossing: a segment end 10⁻¹⁴ m
+    through a 1 cm triangle is 10⁻¹⁸ m³)."""
+    e, f, g = b - a, c - a, d - a
+    volume = np.einsum("kd,kd->k", np.cross(e, f), g)
+    le, lf, lg = (np.linalg.norm(w, axis=1) for w in (e, f, g))
+    bound = 8.0 * _EPS * (le * lf * lg + size * (le * lf + lf * lg + le * lg))
+    return np.where(np.abs(volume) > bound, volume, 0.0)
 
 
 def intersecting_pairs(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -55,9 +71,11 @@ def intersecting_pairs(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     ie, it, e, t = ie[~shares], it[~shares], e[~shares], t[~shares]
     p, q = x[e[:, 0]], x[e[:, 1]]
     a, b, c = x[t[:, 0]], x[t[:, 1]], x[t[:, 2]]
-    sp, sq = _orient(a, b, c, p), _orient(a, b, c, q)
+    size = float(np.abs(x).max())
+    sp, sq = _orient(a, b, c, p, size), _orient(a, b, c, q, size)
     across = sp * sq < 0.0
-    o1, o2, o3 = _orient(p, q, a, b), _orient(p, q, b, c), _orient(p, q, c, a)
+    o1, o2, o3 = (_orient(p, q, a, b, size), _orient(p, q, b, c, size),
+                  _orient(p, q, c, a, size))
     inside = ((o1 > 0) & (o2 > 0) & (o3 > 0)) | ((o1 < 0) & (o2 < 0) & (o3 < 0))
     hit = across & inside
     if not hit.any():

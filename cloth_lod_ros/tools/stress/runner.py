@@ -30,6 +30,11 @@ recorded and checked against explicit bounds:
   in any 1 s window after start-up, below the case's bound (thrashing); the
   deepest level reached where a case is about depth;
 * **solver** — every linear solve converged;
+* **landing** — in the contact cases that say so, no particle leaves an
+  obstacle faster (along the normal) than ``landing`` times the speed at
+  which it landed there (inelastic contact throws nothing);
+* **rest** — from the case's ``rest`` time on, every particle is slower than
+  1 cm/s and the strain below 1 % (the scene comes to rest);
 * **layers** — in the contact cases (``push_with_box``, and the
   self-collision ones), after every step no two triangles that share no
   vertex intersect (an independent check,
@@ -58,7 +63,7 @@ from ...sim.scene.config import parse_override, load_scene
 from ...sim.mesh.topology import MeshError
 from ...sim import ClothSim, SimulationError
 
-from .cases import CASES, EPS, Bounds, Case, Event, _gravity
+from .cases import CASES, EPS, LANDING_SPEED, Bounds, Case, Event, _gravity
 from .intersect import intersecting_pairs
 
 __all__ = ["RunResult", "build_scene", "run_case", "run_cases", "format_table",
@@ -98,6 +103,10 @@ class RunResult:
     failures: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
     crossed_steps: int = 0          # steps ending with intersecting triangles (layers)
+    max_crossing_pairs: int = 0     # most intersecting pairs after one step
+    landing_ratio: float = 0.0      # worst leaving / landing normal speed (landing)
+    rest_speed: float = 0.0         # fastest particle from the rest time on, m/s
+    rest_strain: float = 0.0        # largest strain from the rest time on
     self_collision: dict = field(default_factory=dict)   # SelfCounters, summed
 
     @property
@@ -126,7 +135,9 @@ class RunResult:
             smallest_step=stat(self.smallest_step, np.min),
             deepest_level=self.deepest_level,
             triangles_final=self.triangles_final, wall_seconds=self.wall_seconds,
-            crossed_steps=self.crossed_steps, self_collision=dict(self.self_collision),
+            crossed_steps=self.crossed_steps, max_crossing_pairs=self.max_crossing_pairs,
+            landing_ratio=self.landing_ratio, rest_speed=self.rest_speed,
+            rest_strain=self.rest_strain, self_collision=dict(self.self_collision),
             series=dict(time=self.time.tolist(), max_strain=self.max_strain.tolist(),
                         max_speed=self.max_speed.tolist(), energy=self.energy.tolist(),
                         cg_iterations=self.cg_iterations.tolist(),
@@ -235,6 +246,7 @@ def run_case(case: Case, lod: bool, quick: bool = False,
     series = {k: [] for k in ("time", "strain", "speed", "energy", "cg", "conv", "ops",
                               "substeps", "rejected", "smallest", "particles")}
     deepest = 0
+    landings = _Landings(thickness) if bounds.landing is not None and sim.obstacles else None
     collector = _Collect()
     sim_log = logging.getLogger("cloth_lod_ros")
     sim_log.addHandler(collector)
@@ -244,6 +256,8 @@ def run_case(case: Case, lod: bool, quick: bool = False,
         for _ in range(steps):
             while pending and pending[0].time <= sim.time + 1e-9:
                 _apply_event(sim, pending.pop(0))
+            if landings is not None:
+                landings.before(sim)
             try:
                 s = sim.step()
             except SimulationError as exc:
@@ -268,8 +282,20 @@ def run_case(case: Case, lod: bool, quick: bool = False,
                     fail("mass", f"mass {total:.15g} kg != {nominal_mass:.15g} kg "
                                  f"at t = {t:.3f} s")
             _check_holders(sim, bounds, catch_up, fail)
+            if landings is not None:
+                ratio = landings.after(sim)
+                if ratio > bounds.landing:
+                    fail("landing", f"a particle left an obstacle at {ratio:.2f} x its "
+                                    f"landing speed at t = {t:.3f} s")
+            if bounds.rest is not None and t >= bounds.rest - 1e-9:
+                result.rest_speed = max(result.rest_speed, s.max_speed)
+                result.rest_strain = max(result.rest_strain, s.max_strain)
+                if s.max_speed >= bounds.rest_speed or s.max_strain >= bounds.rest_strain:
+                    fail("rest", f"not at rest at t = {t:.3f} s: {100 * s.max_speed:.1f} "
+                                 f"cm/s, strain {100 * s.max_strain:.2f} %")
             if bounds.layers:
                 crossing = intersecting_pairs(sim.positions, sim.triangles)
+                result.max_crossing_pairs = max(result.max_crossing_pairs, len(crossing))
                 if len(crossing):
                     result.crossed_steps += 1
                     fail("layers", f"{len(crossing)} pair(s) of triangles intersect "
@@ -291,6 +317,8 @@ def run_case(case: Case, lod: bool, quick: bool = False,
         sim_log.removeHandler(collector)
         sim_log.propagate = propagate
 
+    if landings is not None:
+        result.landing_ratio = landings.worst
     result.steps = len(series["time"])
     result.time = np.array(series["time"], dtype=float)
     result.max_strain = np.array(series["strain"], dtype=float)
@@ -310,9 +338,73 @@ def run_case(case: Case, lod: bool, quick: bool = False,
         bounds.startup)
     _check_series(result, bounds, fail)
     order = ("finite", "strain", "speed", "energy", "energy_final", "mass", "mesh", "pins",
-             "grasps", "catch_up", "contact", "layers", "topology", "level", "solver")
+             "grasps", "catch_up", "contact", "landing", "rest", "layers", "topology", "level",
+             "solver")
     result.failures = [f"{k}: {failures[k]}" for k in order if k in failures]
     return result
+
+
+class _Landings:
+    """Landings on obstacles and how fast the particles leave them, followed
+    by particle (the hierarchy's pool ids with LOD on: a particle keeps its id
+    across topology changes) and by obstacle (in the corner between two, a
+    particle lands on one and may slide along the other).
+
+    A particle *touches* an obstacle when it is within 1.5 contact
+    thicknesses of it at a step's end; it *landed* with the normal speed it
+    had at the start of the step in which it first touched it (a particle a
+    split made during that step had none: 0), and it *leaves* with its normal
+    velocity away from that surface at the end of a step after one in which
+    it touched.  Only landings at
+    :data:`~cloth_lod_ros.tools.stress.cases.LANDING_SPEED` or faster are
+    judged."""
+
+    def __init__(self, thickness: float):
+        self.thickness = thickness
+        self.arrival = np.zeros((0, 0))         # (particles, obstacles), m/s
+        self.touched = np.zeros((0, 0), bool)
+        self.touching = np.zeros((0, 0), bool)
+        self.worst = 0.0
+        self._ids = self._v = None
+
+    def _grow(self, size: int, obstacles: int) -> None:
+        if size > len(self.arrival) or self.arrival.shape[1] != obstacles:
+            size = max(size, len(self.arrival))
+            for name, kind in (("arrival", float), ("touched", bool), ("touching", bool)):
+                old = getattr(self, name)
+                new = np.zeros((size, obstacles), kind)
+                new[:len(old), :old.shape[1]] = old
+                setattr(self, name, new)
+
+    def before(self, sim: ClothSim) -> None:
+        self._ids = np.array(sim.vertex_ids, dtype=np.int64)
+        self._v = sim.velocities.copy()
+
+    def after(self, sim: ClothSim) -> float:
+        """The worst leaving / landing ratio of this step (0: none left)."""
+        ids = np.asarray(sim.vertex_ids, dtype=np.int64)
+        self._grow(int(max(ids.max(initial=-1), self._ids.max(initial=-1))) + 1,
+                   len(sim.obstacles))
+        before = np.zeros((len(self.arrival), 3))
+        before[self._ids] = self._v
+        ratio = 0.0
+        touching = np.zeros_like(self.touching)
+        for k, obstacle in enumerate(sim.obstacles):
+            phi, normal = obstacle.distance(sim.positions)
+            speed = np.einsum("nd,nd->n", sim.velocities, normal)
+            landed = self.arrival[ids, k]
+            leaving = self.touching[ids, k] & (speed > 0.0) & (landed >= LANDING_SPEED)
+            if leaving.any():
+                ratio = max(ratio, float(np.max(speed[leaving] / landed[leaving])))
+            now = phi < 1.5 * self.thickness
+            first = now & ~self.touched[ids, k]
+            self.arrival[ids[first], k] = np.abs(np.einsum("nd,nd->n", before[ids[first]],
+                                                           normal[first]))
+            self.touched[ids[now], k] = True
+            touching[ids[now], k] = True
+        self.touching = touching
+        self.worst = max(self.worst, ratio)
+        return ratio
 
 
 def _check_holders(sim: ClothSim, bounds: Bounds, catch_up: dict, fail) -> None:

@@ -7,7 +7,8 @@ import pytest
 
 from cloth_lod_ros.sim import ClothSim
 from cloth_lod_ros.sim.contact import self_contact as self_contact_module
-from cloth_lod_ros.sim.scene.config import SceneError, load_scene, scene_from_dict, scene_to_dict
+from cloth_lod_ros.sim.scene.config import (SceneError, load_scene, scene_from_dict, scene_to_dict,
+                                            self_collision_on)
 from cloth_lod_ros.sim.contact.self_contact import SelfCollision
 from cloth_lod_ros.sim.runtime import compiled as runtime_compiled
 from cloth_lod_ros.sim.contact.self_broad import box_pairs, layered_boxes
@@ -417,7 +418,8 @@ def test_no_self_collision_code_runs_when_it_is_off(monkeypatch):
         raise AssertionError("self-collision code ran")
     for name in ("proximity", "crossings", "constraints", "near", "separate", "set_topology"):
         monkeypatch.setattr(self_contact_module.SelfCollision, name, forbidden)
-    sim = ClothSim(load_scene("grasp_lift", ["simulation.duration=0.1"]))
+    sim = ClothSim(load_scene("grasp_lift", ["simulation.duration=0.1",
+                                            "self_collision.enabled=false"]))
     assert sim.self_collision is None
     sim.run()
     assert all(s.self_collision_ms == 0.0 and s.self_contact_count == 0 for s in sim.stats)
@@ -428,8 +430,18 @@ def test_no_self_collision_code_runs_when_it_is_off(monkeypatch):
 def test_the_section_is_validated_and_round_trips():
     scene = scene_from_dict(_strip_scene())
     assert scene_from_dict(scene_to_dict(scene)) == scene
-    assert not load_scene("hang_two_corners").self_collision.enabled   # off by default
-    assert load_scene("fold_in_half").self_collision.enabled
+    default = load_scene("hang_two_corners")
+    assert default.self_collision.enabled == "auto" and self_collision_on(default)
+    assert load_scene("fold_in_half").self_collision.enabled is True
+    assert not self_collision_on(load_scene("hang_two_corners", ["self_collision.enabled=false"]))
+    # auto where the band cannot fit the finest mesh (level 12: particles 2.8 mm
+    # apart, band 8 mm): off, where true is refused.
+    fine = ["cloth.level=12", "lod.enabled=true"]
+    assert not self_collision_on(load_scene("hang_two_corners", fine))
+    with pytest.raises(SceneError, match=r"self_collision\.thickness"):
+        load_scene("hang_two_corners", fine + ["self_collision.enabled=true"])
+    with pytest.raises(SceneError, match=r"true, false or auto"):
+        load_scene("hang_two_corners", ["self_collision.enabled=sometimes"])
     for field, value, words in (("thickness", 0.1, "self_collision.thickness"),
                                 ("thickness", -1.0, "self_collision.thickness"),
                                 ("friction", -0.1, "self_collision.friction"),
