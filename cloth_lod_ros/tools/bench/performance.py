@@ -30,7 +30,7 @@ from .report import PAPER, own_error_line
 __all__ = ["SOURCES", "anchor", "collect", "machine_line", "markdown", "write_report"]
 
 #: The files a report is made of, in the order of its sections.
-SOURCES = ("bench.json", "scenes.json", "solvers.json")
+SOURCES = ("bench.json", "scenes.json", "solvers.json", "contact.json")
 NOT_RECORDED = "not recorded"
 DEFAULT_REPEATS = 3
 
@@ -194,6 +194,15 @@ def _solvers_section(result: dict, out: str) -> list[str]:
     return md + [""]
 
 
+def _contact_section(result: dict, out: str) -> list[str]:
+    from .contact import markdown as contact_table
+    return ["## Contact scenes against their converged motion: `cloth-lod bench --contact`", "",
+            f"Command: {_suite_command(result, '--contact', out)}  ",
+            machine_line(result["machine"]) + "  ",
+            f"{result.get('minutes', 0):.1f} min in all (cached references count as no time).",
+            "", contact_table(result).rstrip("\n"), ""]
+
+
 def anchor(heading: str) -> str:
     """The fragment a Markdown renderer (GitHub's rule) gives a heading:
     lower case, punctuation other than ``-`` and ``_`` dropped, spaces to ``-``."""
@@ -211,7 +220,8 @@ def markdown(results: dict[str, dict], results_link: str, command: str,
     """
     out_dir = out_dir or results_link
     sections = {"bench": (_bench_section, f"{results_link}/bench.png"),
-                "scenes": (_scenes_section, out_dir), "solvers": (_solvers_section, out_dir)}
+                "scenes": (_scenes_section, out_dir), "solvers": (_solvers_section, out_dir),
+                "contact": (_contact_section, out_dir)}
     parts = {key: render(results[key], arg) for key, (render, arg) in sections.items()
              if key in results}
     md = ["# Performance", "",

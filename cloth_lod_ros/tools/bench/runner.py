@@ -187,6 +187,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="time every built-in scene instead (LOD on and off, "
                              "self-collision's cost where the cloth never meets itself; "
                              "quick: three small cases); writes scenes.json and scenes.md")
+    parser.add_argument("--contact", action="store_true",
+                        help="the contact scenes (drop_on_sphere, table_drape, grasp_lift) at "
+                             "default settings against their converged motion at 1, 2, 3 s, "
+                             "with the reference's own error (references cached under "
+                             "$CLOTH_LOD_CACHE, default /tmp/cloth_lod_bench_cache); writes "
+                             "contact.json and contact.md")
     parser.add_argument("--from-json", metavar="BENCH_JSON",
                         help="run nothing: rewrite the CSV, plot and summary of a finished "
                              "run from its bench.json (into --out, default beside it)")
@@ -328,7 +334,8 @@ def run(args) -> int:
     say = (lambda *a: None) if getattr(args, "quiet", False) else (
         lambda *a: print(*a, flush=True))
     for flag, module, function, table in (("solvers", "backends", "run_backends", "solvers.md"),
-                                          ("scenes", "scenes", "run_scenes", "scenes.md")):
+                                          ("scenes", "scenes", "run_scenes", "scenes.md"),
+                                          ("contact", "contact", "run_contact", "contact.md")):
         if getattr(args, flag, False):
             import importlib
             suite = getattr(importlib.import_module(f"{__package__}.{module}"), function)

@@ -32,13 +32,19 @@ import sys
 import time as _time
 import uuid
 
-__all__ = ["ClusterError", "THREAD_ENV", "open_client", "close", "check_workers", "Runner",
+__all__ = ["ClusterError", "THREAD_ENV", "LOCAL_HOUSEKEEPING", "open_client", "close", "check_workers", "Runner",
            "Progress", "cpu_assignment", "cpu_lock", "need_distributed"]
 
 #: One thread in every pool a worker's libraries start.
 THREAD_ENV = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                                      "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
                                      "NUMEXPR_NUM_THREADS", "NUMBA_NUM_THREADS")}
+
+
+#: Dask's periodic housekeeping in a local cluster, slowed (open_client says why).
+LOCAL_HOUSEKEEPING = {"distributed.admin.tick.interval": "1s",
+                      "distributed.admin.system-monitor.interval": "5s",
+                      "distributed.worker.memory.monitor-interval": "1s"}
 
 
 class ClusterError(RuntimeError):
@@ -94,15 +100,28 @@ def open_client(scheduler: str | None = None, workers: int | None = None,
     # so only this process handles it - it cancels the runs and closes them.
     # The workers' statistical profiler samples the task thread's stack every
     # 10 ms under the GIL: 16 runs of the default scene stepped 26.8 s with it
-    # and 21.3 s without (one worker, steps alone timed; the same runs take
-    # 14.2 s in a plain process).  An existing cluster's workers keep theirs
-    # (docs/sweeps.md says how to turn it off).
-    env = dict(THREAD_ENV, DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED="False")
+    # and 21.3 s without (one worker, steps alone timed).  Without it, a run
+    # takes the same CPU time in a worker as in a plain process when the two
+    # are alternated run by run (docs/sweeps.md, "Speed").  An existing
+    # cluster's workers keep theirs (docs/sweeps.md says how to turn it off).
+    # Dask's housekeeping runs on timers in every process of a local cluster:
+    # the event-loop tick (20 ms), the system monitor (0.5 s) and the memory
+    # monitor (0.1 s).  Between them they took 2-3 % of a core in the client
+    # process and again in each worker (an 8 s busy task, one worker; 0.5 %
+    # each at the intervals below), CPU the runs' cores lose on a 2-core
+    # machine.  The local workers and the scheduler and nannies in this
+    # process run them at these slower intervals; an existing cluster keeps
+    # its own settings.
+    import dask
+    env = dict(THREAD_ENV, DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED="False",
+               **{"DASK_" + key.upper().replace(".", "__").replace("-", "_"): value
+                  for key, value in LOCAL_HOUSEKEEPING.items()})
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                           host="127.0.0.1", dashboard_address="127.0.0.1:0",
-                                           env=env, silence_logs=logging.ERROR)
+        with dask.config.set(LOCAL_HOUSEKEEPING):
+            cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                               host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                                               env=env, silence_logs=logging.ERROR)
     finally:
         signal.signal(signal.SIGINT, previous)
     return distributed.Client(cluster), cluster
