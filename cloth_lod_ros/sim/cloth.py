@@ -154,7 +154,8 @@ class ClothSim(HeldInputs, ObstacleInputs):
                                          scene.material.density, max_level=cloth.level)
             self.hierarchy.refine_uniform(scene.lod.initial_level)
             self._resolve_pin_patches()
-            self.lod_policy = LodPolicy(scene.lod, scene.material, scene.simulation.gravity)
+            self.lod_policy = LodPolicy(scene.lod, scene.material, scene.simulation.gravity,
+                                        cloth)
             self.state = ClothState(np.zeros((0, 3)), np.zeros((0, 3)), 0.0)
             self._adopt_hierarchy()
         else:
@@ -281,9 +282,13 @@ class ClothSim(HeldInputs, ObstacleInputs):
             # batched every merge_interval checks.  Refinement is checked at
             # every one, as it is what keeps the error down.
             check = self.step_count // self.scene.lod.check_interval
+            # Before the first step, as many rounds as there are levels: the
+            # run starts on the mesh its initial shape needs (a start on too
+            # coarse a mesh carries its error through the run).
+            rounds = (self.scene.lod.check_interval if self.step_count
+                      else max(self.scene.lod.check_interval, self.max_level))
             refines, merges = self.adapt(
-                simplify=check % self.scene.lod.merge_interval == 0,
-                rounds=self.scene.lod.check_interval)
+                simplify=check % self.scene.lod.merge_interval == 0, rounds=rounds)
             lod_ms = 1e3 * (_time.perf_counter() - lod_start)
         for g in self.grasps:
             if g.closed:

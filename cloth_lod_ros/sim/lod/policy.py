@@ -34,7 +34,7 @@ flat pair from that arc is ``d = L (1 − cos(θ/2)) / (2 sin(θ/2))``, which is
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -45,8 +45,8 @@ from ..mesh.hierarchy import Hierarchy48
 from ..mesh.operations import Merge
 from .merge_energy import merge_energy_change, merge_kinetic_change
 
-__all__ = ["HingeMeasures", "hinge_measures", "curvature_estimate", "LodPolicy",
-           "LodDecision", "changed_hinges"]
+__all__ = ["HingeMeasures", "hinge_measures", "curvature_estimate", "hinge_detail",
+           "vertex_detail", "relative_thresholds", "LodPolicy", "LodDecision", "changed_hinges"]
 
 
 def curvature_estimate(theta: np.ndarray, height: np.ndarray) -> np.ndarray:
@@ -57,6 +57,96 @@ def curvature_estimate(theta: np.ndarray, height: np.ndarray) -> np.ndarray:
         height: mean distance L of the two opposite vertices from the edge, m.
     """
     return 0.5 * height * np.tan(0.25 * np.abs(theta))
+
+
+def hinge_detail(uv: np.ndarray, hinge_vertices: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """How far the two triangles of each hinge miss a smooth ``field``: ``|[∇f] n̂| L / 8``.
+
+    On each triangle the mesh represents ``field`` (positions, m, or
+    velocities, m/s) by the linear interpolant of its corners, whose gradient
+    is the deformation gradient ``F = ∂f/∂(u, v)`` ``(3, 2)``.  Along the
+    shared edge both gradients agree; across it they jump by ``[∇f] n̂``
+    (``n̂`` the edge's unit normal in the rest plane).  A smooth field with
+    that jump over the two triangles' mean height ``L`` misses their
+    piecewise-linear interpolant by about ``|[∇f] n̂| L / 8`` (the edge-midpoint
+    error of linear interpolation, ``h² f'' / 8``, with ``f'' ≈ [∇f] n̂ / L``;
+    a-posteriori estimators of this kind: Verfürth, *A Posteriori Error
+    Estimation Techniques for Finite Element Methods*, 2013, ch. 1).  For a
+    pure fold by θ of an unstretched cloth ``|[∇x] n̂| = 2 sin(θ/2)``, so the
+    estimate is ``L sin(θ/2) / 4``, the paper's ``(L/2) tan(θ/4)`` to second
+    order; unlike it, it also sees stretch that varies in the plane and, with
+    velocities, a motion the coarse triangles cannot carry.  Zero for every
+    affine field (exactly representable).
+
+    Args:
+        uv: ``(n, 2)`` rest (material) coordinates, m.
+        hinge_vertices: ``(h, 4)`` compact ids: the edge's ends, then the two
+            opposite corners.
+        field: ``(n, 3)`` values at the particles (m or m/s).
+
+    Returns:
+        ``(h,)`` in the field's unit (m or m/s).
+    """
+    hv = np.asarray(hinge_vertices, dtype=np.int64).reshape(-1, 4)
+    if not len(hv):
+        return np.zeros(0)
+    ua, ub, u1, u2 = uv[hv[:, 0]], uv[hv[:, 1]], uv[hv[:, 2]], uv[hv[:, 3]]
+    fa, fb, f1, f2 = field[hv[:, 0]], field[hv[:, 1]], field[hv[:, 2]], field[hv[:, 3]]
+    t = ub - ua
+    length2 = (t * t).sum(axis=1)
+    normal = np.column_stack([-t[:, 1], t[:, 0]]) / np.sqrt(length2)[:, None]
+    jump = np.zeros_like(fa)
+    heights = np.zeros(len(hv))
+    for uk, fk, sign in ((u1, f1, -1.0), (u2, f2, 1.0)):
+        r = uk - ua
+        along = (r * t).sum(axis=1) / length2          # position along the edge, 0..1
+        across = (r * normal).sum(axis=1)              # signed height, m
+        # F n̂ of this triangle: the change of f across the edge per metre.
+        slope = (fk - fa - along[:, None] * (fb - fa)) / across[:, None]
+        jump += sign * slope
+        heights += 0.5 * np.abs(across)
+    return np.sqrt((jump * jump).sum(axis=1)) * heights / 8.0
+
+
+def vertex_detail(field: np.ndarray, vertices: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Hierarchical detail of split particles: ``|f_m − (f_a + f_b) / 2|``.
+
+    A split puts ``m`` at the rest midpoint of its edge ``(a, b)``, so this is
+    what the merge that removes ``m`` would lose of ``field`` (``(n, 3)``, m
+    or m/s): zero for every field affine in (u, v), ``κ ℓ² / 8`` for a
+    surface of normal curvature κ along an edge of rest length ℓ.
+
+    Args:
+        field: ``(n, 3)`` compact values.
+        vertices: ``(k,)`` compact ids of the split particles.
+        ends: ``(k, 2)`` compact ids of their edges' ends.
+
+    Returns:
+        ``(k,)`` in the field's unit.
+    """
+    ends = np.asarray(ends, dtype=np.int64).reshape(-1, 2)
+    delta = field[np.asarray(vertices, dtype=np.int64)] - 0.5 * (field[ends[:, 0]]
+                                                                  + field[ends[:, 1]])
+    return np.sqrt((delta * delta).sum(axis=1))
+
+
+def relative_thresholds(config, cloth) -> tuple[float, float]:
+    """``(refine, coarsen)`` thresholds, m: the config's, or with ``tolerance``
+    set, ``tolerance · h² / side`` and that times the config's coarsen/refine
+    ratio.  ``h`` is the leg of a triangle at the finest level
+    (``block · 2^(−level/2)``), ``side`` the cloth's larger side: a surface of
+    curvature 1/side leaves a detail ``h²/(8 side)`` at that level, so the
+    threshold follows the accuracy the maximum level can give, and one more
+    level halves it (a run with a higher maximum level refines at least where
+    the lower one did).  ``cloth``: the scene's ClothConfig."""
+    refine, coarsen = float(config.refine_threshold), float(config.coarsen_threshold)
+    tolerance = getattr(config, "tolerance", None)
+    if tolerance is None or cloth is None:
+        return refine, coarsen
+    block = min(cloth.width / cloth.base_blocks[0], cloth.height / cloth.base_blocks[1])
+    side = max(cloth.width, cloth.height)
+    relative = float(tolerance) * block * block * 2.0 ** (-cloth.level) / side
+    return relative, relative * coarsen / refine
 
 
 @dataclass
@@ -152,12 +242,25 @@ class LodPolicy:
         material: :class:`cloth_lod_ros.sim.scene.config.MaterialConfig` (k_b for the
             bend-force test, all stiffnesses for the merge energy test).
         gravity: ``(3,)`` m/s² (for the merge energy test).
+        cloth: :class:`cloth_lod_ros.sim.scene.config.ClothConfig`, for the
+            thresholds of ``config.tolerance`` (:func:`relative_thresholds`;
+            None: the thresholds as given).
     """
 
-    def __init__(self, config, material, gravity=(0.0, 0.0, 0.0)):
+    def __init__(self, config, material, gravity=(0.0, 0.0, 0.0), cloth=None):
+        refine, coarsen = relative_thresholds(config, cloth)
+        if (refine, coarsen) != (config.refine_threshold, config.coarsen_threshold):
+            config = replace(config, refine_threshold=refine, coarsen_threshold=coarsen)
         self.config = config
         self.material = material
         self.gravity = np.asarray(gravity, dtype=float)
+        self.detail = getattr(config, "criterion", "curvature") == "detail"
+        # The detail criterion's velocity term is what "settled" means to it:
+        # the hinge rate and bend force tests of the curvature criterion
+        # (absolute limits, which a cloth resting on a curved support never
+        # meets) are off.
+        self._merge_config = (replace(config, max_hinge_rate=np.inf, max_bend_force=np.inf)
+                              if self.detail else config)
 
     def decide(self, hierarchy: Hierarchy48, elements: Elements, vertex_ids: np.ndarray,
                triangle_ids: np.ndarray, x: np.ndarray, v: np.ndarray, masses: np.ndarray,
@@ -216,7 +319,8 @@ class LodPolicy:
             near = layered[elements.triangles].any(axis=1)
             low = hierarchy.level[triangle_ids] < layered_level
             detail = np.union1d(detail, triangle_ids[near & low])
-        if (evaluation is None and recheck is None and supported is None and not layers_near
+        if (not self.detail and evaluation is None and recheck is None and supported is None
+                and not layers_near
                 and not (in_contact is not None and (in_contact > 1).any())
                 and not (cfg.detail_level > 0 and detail_points is not None
                          and len(detail_points))):
@@ -235,6 +339,14 @@ class LodPolicy:
             hinge_tris = hinge_tris[changed]
         measures, deviation = _criterion(hinges, self.material.bend_stiffness, x, v,
                                          evaluation, lookahead)
+        if self.detail:
+            uv = hierarchy.uv[vertex_ids]
+            moved = hinge_detail(uv, hinges.hinge_vertices, x)
+            moving = hinge_detail(uv, hinges.hinge_vertices, v)
+            horizon = cfg.velocity_horizon
+            measures.deviation = moved + horizon * moving
+            # Refine what will be over the threshold by the next check.
+            deviation = moved + (horizon + lookahead) * moving
         # Refine: both triangles of each over-curved hinge, most curved first.
         refine = policy_kernels.refine_order(deviation, cfg.refine_threshold, hinge_tris,
                                              triangle_ids, hierarchy.level, hierarchy.max_level,
@@ -255,20 +367,23 @@ class LodPolicy:
         vertices, kids, ok = np.zeros(0, int), None, None
         if simplify:        # Hierarchy48.split_vertices and tests (a)-(d), or their twins
             found = policy_kernels.merge_candidates(hierarchy, elements.hinge_vertices, measures,
-                                                    cfg, vertex_ids, time - cfg.min_lifetime, held)
+                                                    self._merge_config, vertex_ids,
+                                                    time - cfg.min_lifetime, held)
             if found is None:
                 vertices, kids = hierarchy.split_vertices()
             else:
                 vertices, kids, ok = found
         if len(vertices):
             if ok is None:
-                ok = policy_kernels.mergeable(elements.hinge_vertices, measures, cfg, vertex_ids,
+                ok = policy_kernels.mergeable(elements.hinge_vertices, measures,
+                                              self._merge_config, vertex_ids,
                                               vertices, kids, hierarchy.birth,
                                               time - cfg.min_lifetime, held, hierarchy.vertex_end)
             if ok is None:                       # the reference (one compiled pass above)
+                limits = self._merge_config
                 unsettled = ((measures.deviation >= cfg.coarsen_threshold)
-                             | (np.abs(measures.rate) >= cfg.max_hinge_rate)
-                             | (measures.bend_force >= cfg.max_bend_force))
+                             | (np.abs(measures.rate) >= limits.max_hinge_rate)
+                             | (measures.bend_force >= limits.max_bend_force))
                 blocked = np.zeros(len(x), dtype=bool)
                 blocked[elements.hinge_vertices[unsettled].ravel()] = True
                 # Youngest child (padding -1 never young), by column maxima (exact).
@@ -280,6 +395,14 @@ class LodPolicy:
                 is_held[np.asarray(held, dtype=np.int64)] = True
                 ok = ~(blocked[np.searchsorted(vertex_ids, vertices)] | young
                        | is_held[vertices])
+            if self.detail and ok.any():
+                # What the merge itself loses: the split particle's
+                # hierarchical detail in position and velocity.
+                mid = np.searchsorted(vertex_ids, vertices[ok])
+                ends = np.searchsorted(vertex_ids, hierarchy.vertex_edge[vertices[ok]])
+                lost = (vertex_detail(x, mid, ends)
+                        + cfg.velocity_horizon * vertex_detail(v, mid, ends))
+                ok[ok] = lost < cfg.coarsen_threshold
             if cfg.detail_level > 0 and detail_points is not None and len(detail_points):
                 # Keep grasp neighbourhoods at detail_level: a merge there would
                 # leave parents one level above their children's.
@@ -316,6 +439,8 @@ class LodPolicy:
         counts (``in_contact`` None) and no layer is near (``layered`` None).
         None when the kernels are off or cannot take the hierarchy: then adopt
         and :meth:`decide`.  The refinements as a ``(r,)`` int64 array."""
+        if self.detail:                         # computed on the adopted mesh only
+            return None
         detail = (self._detail_triangles(None, hierarchy, hierarchy.active_triangles(),
                                          detail_points, None)
                   if self.config.detail_level > 0 else _NO_TRIANGLES)

@@ -302,6 +302,19 @@ class LodConfig:
                                   "along contact borders (0: off)")
     detail_radius: float = _spec("float", "m", gt=0, default=0.08,
                                  doc="(u, v) distance from a grasp point that gets detail")
+    criterion: str = _spec("str", choices=("curvature", "detail"), default="curvature",
+                           doc="curvature: the paper's hinge deviation d; detail: the error "
+                               "the coarse triangles make, from the jumps of the position "
+                               "and velocity gradients across each edge and the hierarchical "
+                               "detail of each split particle (design 4)")
+    tolerance: float | None = _spec("float?", "", gt=0, default=None,
+                                    doc="relative accuracy: refine_threshold = tolerance x "
+                                        "h^2 / side (h the edge of the finest level, side the "
+                                        "cloth's larger side), coarsen_threshold scaled with "
+                                        "it; unset: the thresholds as given")
+    velocity_horizon: float = _spec("float", "s", ge=0, default=0.1,
+                                    doc="criterion detail: a velocity detail counts as the "
+                                        "position detail it makes in this time")
 
 
 @dataclass(frozen=True)
