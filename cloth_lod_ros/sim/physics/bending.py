@@ -43,8 +43,8 @@ only at the valence-4 vertices: a zig-zag of the valence-8 ones lowered a
 bent sheet's energy by ¼, issue 32).
 
 Energy ``E = k_b/2 Σ_s |Σ_k c_sk x_{v_sk}|²`` over stencils s (3-vectors), with
-``√weight`` folded into the coefficients ``c`` (1/m · m = dimensionless·m⁰…:
-``c`` in 1/m so that E is in J with k_b in N·m).  Hessian
+``√weight`` (m) folded into the coefficients ``c`` (1/m), so ``D_s`` is
+dimensionless and E is in J with k_b in N·m.  Hessian
 ``Q = k_b Σ_s c_s c_sᵀ ⊗ I₃``: constant per topology, forces ``f = −Q x``.
 """
 
@@ -66,8 +66,8 @@ class BendStencils:
 
     Attributes:
         kinds: tuple of ``(vertices (s, k) int64, coef (s, k) float)`` pairs:
-            stencil s is ``D_s = Σ_j coef[s, j] x[vertices[s, j]]`` (m⁻¹ · m
-            per unit √area: ``|D_s|²`` in J/(N·m)); padding entries repeat a
+            stencil s is ``D_s = Σ_j coef[s, j] x[vertices[s, j]]`` (coef in
+            1/m, D_s dimensionless); padding entries repeat a
             vertex of the stencil with coefficient 0.  Kind 0 has k = 4 (lines
             and twists), kind 1 the fitted stencils (k the largest two-ring).
     """
@@ -199,11 +199,14 @@ def bend_stencils(uv: np.ndarray, tri: np.ndarray,
                   * vec[:, :, None] * vec[:, None, :])
     fitted = np.flatnonzero(np.abs(G).reshape(n, 9).sum(axis=1) > 0)
     if len(fitted):
-        kinds.append(_fitted(uv, tri, fitted, G[fitted]))
+        # Fits see the free sheet and the clamp's border, not the clamp's
+        # inside (flat: a fit across the curvature's jump would blur it).
+        border = held & np.isin(np.arange(n), tri[~held[tri].all(axis=1)].ravel())
+        kinds.append(_fitted(uv, tri, fitted, G[fitted], ~held | border))
     return BendStencils(kinds=tuple(kinds))
 
 
-def _fitted(uv, tri, vertices, G):
+def _fitted(uv, tri, vertices, G, usable):
     """Stencils ``R W`` with ``Rᵀ R = G`` and ``W`` the least-squares Hessian
     ``(H_11, H_22, H_12)`` of each vertex's two-ring (rest coordinates)."""
     n = len(uv)
@@ -215,7 +218,7 @@ def _fitted(uv, tri, vertices, G):
     out_v, out_c = [], []
     for r, i in enumerate(vertices):
         nbrs = ring.indices[ring.indptr[r]:ring.indptr[r + 1]]
-        nbrs = nbrs[nbrs != i]
+        nbrs = nbrs[(nbrs != i) & usable[nbrs]]
         d = uv[nbrs] - uv[i]
         scale = np.sqrt(np.mean(np.sum(d * d, axis=1)))
         s = d / scale
@@ -249,8 +252,8 @@ def bend_energy(stencils: BendStencils, bend_stiffness: float, x: np.ndarray) ->
 
 
 def bend_matrix(stencils: BendStencils, n: int) -> sp.csr_matrix:
-    """The scalar ``(n, n)`` matrix ``Σ_s c_s c_sᵀ`` (1/m² · m²…): the Hessian
-    of the bend energy is ``k_b`` times it, ⊗ I₃."""
+    """The scalar ``(n, n)`` matrix ``Σ_s c_s c_sᵀ`` (1/m²): the Hessian of the
+    bend energy is ``k_b`` times it, ⊗ I₃."""
     mats = []
     for verts, coef in stencils.kinds:
         s, k = verts.shape

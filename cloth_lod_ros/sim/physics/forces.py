@@ -15,16 +15,18 @@ deformation gradient's columns, see :func:`.elements.precompute`):
   energy ``k_s/2 (C_u² + C_v²)``; ``k_s`` in N/m.  Because ``C² ∝ A`` a uniform
   strain gives the same total energy at every level.
 * shear    ``C_s = √A (w_u · w_v)``, energy ``k_sh/2 C_s²``; ``k_sh`` in N/m.
-* bend     ``C_b = √c_e θ`` per interior edge (θ = signed angle between the two
-  normals), energy ``k_b/2 c_e θ²``; ``k_b`` in N·m (J).  The weight
-  ``c_e = γ |e|² / (A₁ + A₂)`` with ``γ = ½`` on a side where the edge is the
-  triangle's hypotenuse and ``1`` where it is a leg.  On a 4-8 mesh this makes
-  ``c_e = 1`` for every hinge type and the hinge sum isotropic: a cylinder of
-  radius R gets ``k_b/2 · R⁻² · area`` as the level grows (the missing hinges of
-  the border strip make a deficit of order one edge length).
+* bend     the quadratic energy ``k_b/2 Σ_s |D_s x|²`` of :mod:`.bending`
+  (``k_b`` in N·m): ``D_s`` are second differences of the positions on the
+  rest lattice (line stencils along the legs, twist stencils on diamonds,
+  fitted stencils where those are missing), so the energy is the continuum's
+  ``k_b/2 ∫|∇²x|² dA`` (a cylinder of radius R: ``k_b/2 R⁻² A``; Poisson
+  ratio 0), zero for rigid motions, with a constant Hessian.  The hinge
+  angles θ are still computed (the LOD criterion's curvature measure) but
+  carry no energy.
 
 Damping is Rayleigh-like along each condition (BW §4.5):
-``f_d = −β k ∇C Ċ`` with ``β`` in seconds.  The air (:func:`.air.air_forces`, design
+``f_d = −β k ∇C Ċ`` with ``β`` in seconds; for bending the condition is each
+stencil's ``|D_s|`` (objective: a rigid rotation is not damped).  The air (:func:`.air.air_forces`, design
 §2) pushes each face along its normal, ``−½ ρ C_d A |v_n| v_n n`` (ρ in kg/m³,
 C_d dimensionless, A the current area, v_n the normal component of the face's
 velocity relative to the wind), a third to each corner; the integrator adds the
@@ -34,8 +36,9 @@ Jacobians (what the implicit solve keeps; design §2–3):
 
 * stretch: full ``−k (∇C ∇Cᵀ + C ∇²C)`` but with ``C`` clamped to ``≥ 0`` in the
   second term (a compressed triangle would make it indefinite);
-* shear and bend: the Gauss–Newton part ``−k ∇C ∇Cᵀ`` only; ``C ∇²C`` is
+* shear: the Gauss–Newton part ``−k ∇C ∇Cᵀ`` only; ``C ∇²C`` is
   indefinite for any sign of C and is dropped (it vanishes at rest);
+* bend: exact, ``−k_b Σ_s c_s c_sᵀ ⊗ I₃`` (the energy is quadratic);
 * damping: ``∂f_d/∂v = −β k ∇C ∇Cᵀ`` (exact); ``∂f_d/∂x`` is dropped (BW §5.2,
   it is non-symmetric);
 * air: ``∂f/∂v`` exact (``−ρ C_d A |v_n| / 9 · n nᵀ`` between any two corners of
