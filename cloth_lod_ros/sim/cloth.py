@@ -24,6 +24,8 @@ Example::
 
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 import os
 import time as _time
@@ -191,6 +193,20 @@ class ClothSim(HeldInputs, ObstacleInputs):
         self._contacts_version = -1
         self._step_operations: OperationLog | None = None   # the LOD operations of the step running
 
+    def _clamp_bending(self, held: np.ndarray) -> None:
+        """Give the bending energy the held particles ``held`` (compact indices)
+        as its clamps (:func:`~.physics.bending.bend_stencils`): new stencils
+        and sparsity pattern when what is held changed."""
+        mask = np.zeros(self.elements.vertex_count, dtype=bool)
+        mask[held] = True
+        current = self.elements.clamped
+        if (not mask.any() and current is None) or (
+                current is not None and np.array_equal(current, mask)):
+            return
+        self.elements = dataclasses.replace(self.elements,
+                                            clamped=mask if mask.any() else None)
+        self.solver.reset_topology()
+
     def _adopt_hierarchy(self) -> None:
         """Refresh the compact arrays after the hierarchy's topology changed."""
         h = self.hierarchy
@@ -294,6 +310,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
             if g.closed:
                 g.advance(next_time, h)
         held = self._held(next_time)
+        self._clamp_bending(held[0])
         # Kinematic obstacles: their motion over this step is known now; they
         # take their end poses only if the step succeeds.
         sweep = self._obstacle_sweep(next_time, h)

@@ -182,10 +182,10 @@ class ImplicitStageSolver:
 
     def _new_pattern(self, elements: Elements) -> None:
         start = _time.perf_counter()
+        # The bend stencils couple each vertex's two-ring (physics.bending).
         self._pattern = SparsePattern(elements.vertex_count,
-                                      [elements.triangles, elements.hinge_vertices],
-                                      storage=self._pattern_storage, edges=elements.edges,
-                                      hinge_triangles=elements.hinge_triangles)
+                                      elements.element_vertices,
+                                      storage=self._pattern_storage)
         self.backend.reset_topology(self._pattern, self._uv,
                                     graded=self._graded)
         self.pattern_ms += 1e3 * (_time.perf_counter() - start)

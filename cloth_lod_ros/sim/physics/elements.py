@@ -12,6 +12,7 @@ from functools import cached_property
 import numpy as np
 
 from ..mesh.mesh48 import RestMesh
+from .bending import BendStencils, bend_stencils
 
 __all__ = ["Elements", "precompute", "triangle_maps", "hinge_weights"]
 
@@ -30,6 +31,13 @@ class Elements:
         hinge_triangles: ``(h, 2)`` the two triangles of each hinge.
         vertex_count: number of vertices.
         edges: edge structure for the sparsity pattern, or None (topology.Hinges.edges).
+        rest_uv: ``(n, 2)`` rest material coordinates, m (the bending stencils'
+            geometry; None: no bending).
+        bend: the :class:`~.bending.BendStencils` of this topology (made from
+            ``rest_uv``, ``triangles`` and ``clamped`` when first read).
+        clamped: ``(n,)`` bool, the particles held rigidly (pin and grasp
+            patches): the bending energy is the free sheet's, clamped there
+            (:func:`~.bending.bend_stencils`); None: nothing held.
         coef_u_cm, coef_v_cm, triangles_cm: ``(3, t)`` contiguous transposes of
             ``coef_u``, ``coef_v``, ``triangles`` (the component-major code reads rows).
     """
@@ -43,11 +51,26 @@ class Elements:
     hinge_triangles: np.ndarray
     vertex_count: int
     edges: tuple | None = field(default=None, repr=False)
+    rest_uv: np.ndarray | None = field(default=None, repr=False)
+    clamped: np.ndarray | None = field(default=None, repr=False)
 
     # Made when first read (only the numpy evaluation reads them), once per topology.
     coef_u_cm = cached_property(lambda self: np.ascontiguousarray(self.coef_u.T))
     coef_v_cm = cached_property(lambda self: np.ascontiguousarray(self.coef_v.T))
     triangles_cm = cached_property(lambda self: np.ascontiguousarray(self.triangles.T))
+
+    @property
+    def element_vertices(self) -> list:
+        """The vertex lists of every element kind the system matrix couples:
+        ``[triangles (t, 3), *bend stencils (s, k)]`` (the sparsity pattern's,
+        :class:`~cloth_lod_ros.sim.solve.pattern.SparsePattern`)."""
+        return [self.triangles, *(vertices for vertices, _ in self.bend.kinds)]
+
+    @cached_property
+    def bend(self) -> BendStencils:
+        if self.rest_uv is None:
+            return BendStencils(kinds=())
+        return bend_stencils(self.rest_uv, self.triangles, self.clamped)
 
 
 def precompute(mesh: RestMesh) -> Elements:
@@ -67,7 +90,7 @@ def precompute(mesh: RestMesh) -> Elements:
         triangles=tri.copy(), area=area, coef_u=coef_u, coef_v=coef_v,
         hinge_vertices=np.column_stack([hinges.edge, hinges.opposite]),
         hinge_weight=weight, hinge_triangles=hinges.triangles,
-        vertex_count=mesh.vertex_count)
+        vertex_count=mesh.vertex_count, rest_uv=uv)
 
 
 def triangle_maps(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -115,7 +115,7 @@ def precompute(mesh: _mesh48.RestMesh) -> _elements.Elements:
     return _elements.Elements(
         triangles=tri.copy(), area=area, coef_u=coef_u, coef_v=coef_v,
         hinge_vertices=hv, hinge_weight=weight, hinge_triangles=hinges.triangles,
-        vertex_count=mesh.vertex_count, edges=hinges.edges)
+        vertex_count=mesh.vertex_count, edges=hinges.edges, rest_uv=uv)
 
 
 @_jit
@@ -176,7 +176,8 @@ def _adopted_elements(mesh: _mesh48.RestMesh, built) -> _elements.Elements:
                                              edges=edges)
     return _elements.Elements(triangles=mesh.triangles.copy(), area=area, coef_u=coef_u,
                               coef_v=coef_v, hinge_vertices=hv, hinge_weight=weight,
-                              hinge_triangles=tris, vertex_count=mesh.vertex_count, edges=edges)
+                              hinge_triangles=tris, vertex_count=mesh.vertex_count, edges=edges,
+                              rest_uv=mesh.uv)
 
 
 def warm_up() -> None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .elements import Elements
-from .hinges import hinge_angles
+from .bending import bend_energy
 from .vectors import _dot
 
 __all__ = ["elastic_energies", "stretch_lengths", "membrane_energies"]
@@ -40,15 +40,12 @@ def elastic_energies(elements: Elements, material, x: np.ndarray) -> dict:
     wv = np.einsum("tk,tkd->td", elements.coef_v, xt)
     len_u, len_v = np.sqrt(_dot(wu, wu)), np.sqrt(_dot(wv, wv))
     area = elements.area
-    theta = hinge_angles(x, elements.hinge_vertices) if len(elements.hinge_vertices) \
-        else np.zeros(0)
     strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
     return dict(
         stretch=float(0.5 * material.stretch_stiffness
                       * np.sum(area * ((len_u - 1.0)**2 + (len_v - 1.0)**2))),
         shear=float(0.5 * material.shear_stiffness * np.sum(area * _dot(wu, wv)**2)),
-        bend=float(0.5 * material.bend_stiffness
-                   * np.sum(elements.hinge_weight * theta**2)),
+        bend=bend_energy(elements.bend, material.bend_stiffness, x),
         max_strain=float(strain.max()) if len(strain) else 0.0)
 
 

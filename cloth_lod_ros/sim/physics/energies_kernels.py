@@ -9,7 +9,7 @@ import numpy as np
 
 from ..runtime.compiled import _as_index, _jit, enabled
 from . import energies as _energies
-from .hinges_kernels import hinge_angles
+from .bending import bend_energy
 
 __all__ = ["stretch_lengths", "elastic_energies"]
 
@@ -55,11 +55,10 @@ def elastic_energies(elements, material, x: np.ndarray) -> dict:
         return _energies.elastic_energies(elements, material, x)
     len_u, len_v, shear = _measures(elements, x)
     area = elements.area
-    theta = hinge_angles(x, elements.hinge_vertices)
     strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
     return dict(
         stretch=float(0.5 * material.stretch_stiffness
                       * np.sum(area * ((len_u - 1.0)**2 + (len_v - 1.0)**2))),
         shear=float(0.5 * material.shear_stiffness * np.sum(area * shear**2)),
-        bend=float(0.5 * material.bend_stiffness * np.sum(elements.hinge_weight * theta**2)),
+        bend=bend_energy(elements.bend, material.bend_stiffness, x),
         max_strain=float(strain.max()) if len(strain) else 0.0)

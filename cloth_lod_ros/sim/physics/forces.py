@@ -15,16 +15,18 @@ deformation gradient's columns, see :func:`.elements.precompute`):
   energy ``k_s/2 (C_u² + C_v²)``; ``k_s`` in N/m.  Because ``C² ∝ A`` a uniform
   strain gives the same total energy at every level.
 * shear    ``C_s = √A (w_u · w_v)``, energy ``k_sh/2 C_s²``; ``k_sh`` in N/m.
-* bend     ``C_b = √c_e θ`` per interior edge (θ = signed angle between the two
-  normals), energy ``k_b/2 c_e θ²``; ``k_b`` in N·m (J).  The weight
-  ``c_e = γ |e|² / (A₁ + A₂)`` with ``γ = ½`` on a side where the edge is the
-  triangle's hypotenuse and ``1`` where it is a leg.  On a 4-8 mesh this makes
-  ``c_e = 1`` for every hinge type and the hinge sum isotropic: a cylinder of
-  radius R gets ``k_b/2 · R⁻² · area`` as the level grows (the missing hinges of
-  the border strip make a deficit of order one edge length).
+* bend     the quadratic energy ``k_b/2 Σ_s |D_s x|²`` of :mod:`.bending`
+  (``k_b`` in N·m): ``D_s`` are second differences of the positions on the
+  rest lattice (line stencils along the legs, twist stencils on diamonds,
+  fitted stencils where those are missing), so the energy is the continuum's
+  ``k_b/2 ∫|∇²x|² dA`` (a cylinder of radius R: ``k_b/2 R⁻² A``; Poisson
+  ratio 0), zero for rigid motions, with a constant Hessian.  The hinge
+  angles θ are still computed (the LOD criterion's curvature measure) but
+  carry no energy.
 
 Damping is Rayleigh-like along each condition (BW §4.5):
-``f_d = −β k ∇C Ċ`` with ``β`` in seconds.  The air (:func:`.air.air_forces`, design
+``f_d = −β k ∇C Ċ`` with ``β`` in seconds; for bending the condition is each
+stencil's ``|D_s|`` (objective: a rigid rotation is not damped).  The air (:func:`.air.air_forces`, design
 §2) pushes each face along its normal, ``−½ ρ C_d A |v_n| v_n n`` (ρ in kg/m³,
 C_d dimensionless, A the current area, v_n the normal component of the face's
 velocity relative to the wind), a third to each corner; the integrator adds the
@@ -34,8 +36,9 @@ Jacobians (what the implicit solve keeps; design §2–3):
 
 * stretch: full ``−k (∇C ∇Cᵀ + C ∇²C)`` but with ``C`` clamped to ``≥ 0`` in the
   second term (a compressed triangle would make it indefinite);
-* shear and bend: the Gauss–Newton part ``−k ∇C ∇Cᵀ`` only; ``C ∇²C`` is
+* shear: the Gauss–Newton part ``−k ∇C ∇Cᵀ`` only; ``C ∇²C`` is
   indefinite for any sign of C and is dropped (it vanishes at rest);
+* bend: exact, ``−k_b Σ_s c_s c_sᵀ ⊗ I₃`` (the energy is quadratic);
 * damping: ``∂f_d/∂v = −β k ∇C ∇Cᵀ`` (exact); ``∂f_d/∂x`` is dropped (BW §5.2,
   it is non-symmetric);
 * air: ``∂f/∂v`` exact (``−ρ C_d A |v_n| / 9 · n nᵀ`` between any two corners of
@@ -59,16 +62,17 @@ from .vectors import _corners, _dot_soa
 __all__ = ["Evaluation", "evaluate"]
 
 
-def summarise(material, conditions, weight, theta, hinge_gradient, force, kv,
+def summarise(material, conditions, bend_sq, theta, hinge_gradient, force, kv,
               triangle_blocks, hinge_blocks) -> "Evaluation":
     """The :class:`Evaluation`; energies (J) and largest strain from the conditions
-    ``(c_u, c_v, c_s, len_u, len_v)`` ``(t,)`` and the hinge angles ``(h,)`` rad."""
+    ``(c_u, c_v, c_s, len_u, len_v)`` ``(t,)`` and ``Σ_s |D_s x|²`` of the bend
+    stencils (J/(N·m)); ``theta`` the hinge angles ``(h,)`` rad."""
     c_u, c_v, c_s, len_u, len_v = conditions
     strain = np.concatenate([np.abs(len_u - 1.0), np.abs(len_v - 1.0)])
     return Evaluation(
         force=force, shear_energy=float(0.5 * material.shear_stiffness * np.sum(c_s**2)),
         stretch_energy=float(0.5 * material.stretch_stiffness * (np.sum(c_u**2) + np.sum(c_v**2))),
-        bend_energy=float(0.5 * material.bend_stiffness * np.sum(weight * theta**2)),
+        bend_energy=float(0.5 * material.bend_stiffness * bend_sq),
         max_strain=float(strain.max()) if len(strain) else 0.0,
         stiffness_times_velocity=kv, triangle_blocks=triangle_blocks,
         hinge_blocks=hinge_blocks, hinge_angle=theta, hinge_gradient=hinge_gradient)
@@ -88,7 +92,8 @@ class Evaluation:
         triangle_blocks: ``(t, 3, 3, 3, 3)`` entries ``[e, i, a, j, b]`` of
             ``−(stiffness_weight ∂f/∂x + damping_weight ∂f/∂v)`` (row ``3·v_i + a``,
             column ``3·v_j + b``), or ``None``.
-        hinge_blocks: ``(h, 4, 3, 4, 3)`` same layout for hinges, or ``None``.
+        hinge_blocks: list of ``(s, k, 3, k, 3)``, the same layout for each kind
+            of bend stencil (``elements.bend.kinds``), or ``None``.
         hinge_angle: ``(h,)`` θ in rad; ``hinge_gradient``: ``(h, 4, 3)`` ∂θ/∂x
             in 1/m (what the LOD criterion needs; it computes them alone with
             :func:`hinge_angles`, the same numbers).
@@ -107,6 +112,12 @@ class Evaluation:
     hinge_angle: np.ndarray
     hinge_gradient: np.ndarray
     assembled: np.ndarray | None = None
+
+    @property
+    def blocks(self) -> list:
+        """``[triangle_blocks, *hinge_blocks]``: every element kind's blocks, in
+        the order of ``Elements.element_vertices``."""
+        return [self.triangle_blocks, *self.hinge_blocks]
 
 
 def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
@@ -173,21 +184,17 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
     kv_u = (-ks * area) * ((1.0 - tens_u) * along_u * dir_u + tens_u * wu_dot) + shear_kv * wv
     kv_v = (-ks * area) * ((1.0 - tens_v) * along_v * dir_v + tens_v * wv_dot) + shear_kv * wu
 
-    # Bend hinges.
+    # Bending: the quadratic stencil energy k_b/2 Σ|D_s x|² (.bending); the
+    # hinge angles are kept for the LOD criterion only.
     hv = elements.hinge_vertices
-    weight = elements.hinge_weight
     if len(hv):
         theta, grad_b = hinge_angles(x, hv, with_gradient=True)
-        theta_dot = np.einsum("hkd,hkd->h", grad_b, v[hv])
-        hinge_force = (-kb * weight * (theta + bb * theta_dot))[:, None, None] * grad_b
-        hinge_kv = (-kb * weight * theta_dot)[:, None, None] * grad_b
     else:
-        theta = theta_dot = np.zeros(0)
-        grad_b = np.zeros((0, 4, 3))
-        hinge_force = hinge_kv = grad_b
+        theta, grad_b = np.zeros(0), np.zeros((0, 4, 3))
+    bend_force, bend_kv, bend_sq, bend_units = _bend_terms(elements.bend, x, v, kb, bb)
 
-    force = _scatter_membrane(tri, cu, cv, force_u, force_v, n) + _scatter(hv, hinge_force, n)
-    kv = _scatter_membrane(tri, cu, cv, kv_u, kv_v, n) + _scatter(hv, hinge_kv, n)
+    force = _scatter_membrane(tri, cu, cv, force_u, force_v, n) + bend_force
+    kv = _scatter_membrane(tri, cu, cv, kv_u, kv_v, n) + bend_kv
 
     tri_blocks = hinge_blocks = None
     if with_blocks:
@@ -200,16 +207,44 @@ def evaluate(elements: Elements, material, x: np.ndarray, v: np.ndarray,
         tri_blocks = _membrane_blocks(
             elements, ks * area * (cK + cD * bs), ks * area * cK, ((cK + cD * bsh) * ksh) * area,
             (dir_u, tens_u, wv), (dir_v, tens_v, wu), air_face)
-        g = grad_b.reshape(len(grad_b), 12)
-        scaled = ((cK + cD * bb) * kb * weight)[:, None] * g              # (h, 12)
-        # einsum's outer product: the same single products as broadcasting
-        # (h, 12, 1) × (h, 1, 12), ~1.6x faster (that loops over rows of 12).
-        hinge_blocks = np.einsum("hi,hj->hij", scaled, g).reshape(len(g), 4, 3, 4, 3)
+        # k_b c_i c_j (cK I + cD β_b D̂D̂ᵀ) for stencil vertices i, j.
+        eye = np.eye(3)
+        hinge_blocks = [kb * np.einsum("si,sj,sab->siajb", coef, coef,
+                                       cK * eye + (cD * bb) * unit[:, :, None] * unit[:, None, :])
+                        for (_, coef), unit in zip(elements.bend.kinds, bend_units)]
     elif air is not None:
         force += _air_face_terms(elements, air, corners_x, corners_v, damping_weight, False)[0]
 
-    return summarise(material, (c_u, c_v, c_s, len_u, len_v), weight, theta, grad_b, force,
+    return summarise(material, (c_u, c_v, c_s, len_u, len_v), bend_sq, theta, grad_b, force,
                      kv, tri_blocks, hinge_blocks)
+
+
+def _bend_terms(stencils, x: np.ndarray, v: np.ndarray, kb: float, bb: float):
+    """Bend force (N), ``(∂f/∂x) v`` (N/s), both ``(n, 3)``, ``Σ_s |D_s x|²``
+    (J/(N·m)) and the unit vectors ``D̂_s`` (per kind ``(s, 3)``, 0 where
+    ``D_s = 0``).
+
+    Elastic: ``−k_b Σ_s c_s D_s`` (the exact gradient of the quadratic energy).
+    Damping: ``−k_b β_b Σ_s c_s (D̂_s · Ḋ_s) D̂_s``, Rayleigh damping along the
+    condition ``C_s = |D_s|`` (BW §4.5): it sees the rate of each stencil's
+    curvature and not a rigid rotation (``Ḋ = ω × D ⊥ D``), so it exerts no
+    net torque; damping ``Ḋ`` itself would brake a rigidly spinning bent sheet.
+    """
+    n = len(x)
+    force, kv = np.zeros((n, 3)), np.zeros((n, 3))
+    total = 0.0
+    units = []
+    for verts, coef in stencils.kinds:
+        d = np.einsum("sk,skd->sd", coef, x[verts])
+        d_dot = np.einsum("sk,skd->sd", coef, v[verts])
+        size = np.sqrt(np.sum(d * d, axis=1))
+        unit = d / np.where(size > 0.0, size, 1.0)[:, None]
+        rate = np.sum(unit * d_dot, axis=1)
+        total += float(np.sum(d * d))
+        force += _scatter(verts, -kb * coef[:, :, None] * (d + bb * rate[:, None] * unit)[:, None, :], n)
+        kv += _scatter(verts, -kb * coef[:, :, None] * d_dot[:, None, :], n)
+        units.append(unit)
+    return force, kv, total, units
 
 
 def _membrane_blocks(elements: Elements, along: np.ndarray, across_scale: np.ndarray,

@@ -30,7 +30,7 @@ import numpy as np
 
 from . import forces as _forces
 from ..runtime.compiled import _as_index, _jit, enabled
-from .hinges_kernels import _hinge_geometry
+from . import hinges_kernels as _hinges_kernels
 
 
 __all__ = ["evaluate", "assemble"]
@@ -204,55 +204,68 @@ def _membrane(tri, cu, cv, area, x, v, ks, ksh, bs, bsh, c_k, c_d, air_coef, win
 
 
 @_jit
-def _hinges(hv, weight, x, v, kb, bb, c_k, c_d, force, kv, theta, grad,
-            blocks, slots, data, mode):
-    """Bend of every hinge, ``C_b = √c_e θ`` (seed paper §5; design §2).
+def _stencils(sv, sc, x, v, kb, bb, c_k, c_d, force, kv, blocks, slots, data, mode):
+    """Bend of every stencil of one kind, ``E = k_b/2 |D_s x|²`` with
+    ``D_s x = Σ_j c_sj x_{v_sj}`` (physics.bending; forces._bend_terms: the
+    elastic force ``−k_b c D``, damping ``−k_b β_b c (D̂·Ḋ) D̂``).
 
     Args:
-        hv ``(h, 4)`` int64 ``(e0, e1, o0, o1)``; weight ``(h,)`` c_e; x, v
-        ``(n, 3)``; kb N·m; bb s; c_k, c_d block weights.
-        force, kv: ``(n, 3)`` zeroed outputs (N, N/s), summed in (hinge,
-            vertex) order like the reference's ``np.bincount``.
-        theta ``(h,)`` rad and grad ``(h, 4, 3)`` 1/m: outputs, θ and ∂θ/∂x
-            (Bridson et al. 2003, as hinges.hinge_angles).
-        blocks: ``(h, 144)`` output ``[e, i, a, j, b]`` (mode 1); slots
-            ``(h, 4, 4)`` and data: as :func:`_membrane`'s (mode 2).
+        sv ``(s, k)`` int64 vertices, sc ``(s, k)`` coefficients; x, v ``(n, 3)``;
+        kb N·m; bb s; c_k, c_d block weights.
+        force, kv: ``(n, 3)`` outputs to add into (N, N/s).
+        blocks: ``(s, 9 k²)`` output ``[e, i, a, j, b]`` (mode 1); slots
+            ``(s, k, k)`` and data: as :func:`_membrane`'s (mode 2).  Block
+            ``k_b c_i c_j (c_k I + c_d β_b D̂D̂ᵀ)``.
+
+    Returns ``Σ_s |D_s x|²``.
     """
-    h_count = hv.shape[0]
-    g = np.empty(12)
-    for h in range(h_count):
-        th = _hinge_geometry(x, hv[h, 0], hv[h, 1], hv[h, 2], hv[h, 3], g)
-        theta[h] = th
-        theta_dot = 0.0
-        for k in range(4):
-            node = hv[h, k]
-            for d in range(3):
-                grad[h, k, d] = g[3 * k + d]
-                theta_dot += g[3 * k + d] * v[node, d]
-        s_force = -kb * weight[h] * (th + bb * theta_dot)
-        s_kv = -kb * weight[h] * theta_dot
-        for k in range(4):
-            node = hv[h, k]
-            for d in range(3):
-                force[node, d] += s_force * g[3 * k + d]
-                kv[node, d] += s_kv * g[3 * k + d]
+    s_count, k_count = sv.shape
+    d = np.empty(3)
+    d_dot = np.empty(3)
+    unit = np.empty(3)
+    block = np.empty((3, 3))
+    total = 0.0
+    for s in range(s_count):
+        for a in range(3):
+            d[a] = 0.0
+            d_dot[a] = 0.0
+        for k in range(k_count):
+            c, node = sc[s, k], sv[s, k]
+            for a in range(3):
+                d[a] += c * x[node, a]
+                d_dot[a] += c * v[node, a]
+        size2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+        total += size2
+        size = np.sqrt(size2)
+        inv = 1.0 / size if size > 0.0 else 0.0
+        rate = 0.0
+        for a in range(3):
+            unit[a] = d[a] * inv
+            rate += unit[a] * d_dot[a]
+        for k in range(k_count):
+            c, node = sc[s, k], sv[s, k]
+            for a in range(3):
+                force[node, a] -= kb * c * (d[a] + bb * rate * unit[a])
+                kv[node, a] -= kb * c * d_dot[a]
         if mode == 0:
             continue
-        # Gauss–Newton block (cK + cD β_b) k_b c_e ∇θ ∇θᵀ, rows (i, a), columns (j, b).
-        scale = (c_k + c_d * bb) * kb * weight[h]
-        if mode == 1:
-            for r in range(12):
-                scaled = scale * g[r]
-                for c in range(12):
-                    blocks[h, 12 * r + c] = scaled * g[c]
-            continue
-        for i in range(4):
-            for j in range(4):
-                start = slots[h, i, j]       # block (i, j): 9 consecutive entries
-                for a in range(3):
-                    scaled = scale * g[3 * i + a]
-                    for b in range(3):
-                        data[start + 3 * a + b] += scaled * g[3 * j + b]
+        for a in range(3):
+            for b in range(3):
+                block[a, b] = kb * ((c_k if a == b else 0.0) + c_d * bb * unit[a] * unit[b])
+        for i in range(k_count):
+            for j in range(k_count):
+                cc = sc[s, i] * sc[s, j]
+                if mode == 1:
+                    base = 9 * k_count * i + 3 * j
+                    for a in range(3):
+                        for b in range(3):
+                            blocks[s, base + 3 * k_count * a + b] = cc * block[a, b]
+                else:
+                    start = slots[s, i, j]
+                    for a in range(3):
+                        for b in range(3):
+                            data[start + 3 * a + b] += cc * block[a, b]
+    return total
 
 
 def evaluate(elements, material, x: np.ndarray, v: np.ndarray,
@@ -282,10 +295,18 @@ def evaluate(elements, material, x: np.ndarray, v: np.ndarray,
     cK, cD = float(stiffness_weight), float(damping_weight)
     scratch = np.empty(0)
     data = np.zeros(9 * pattern.block_count) if fused else scratch
-    tri_slots, hinge_slots = pattern.block_slots if fused else (
-        np.empty((0, 3, 3), dtype=np.int64), np.empty((0, 4, 4), dtype=np.int64))
+    kinds = elements.bend.kinds
+    if fused:
+        wanted = [tuple(v.shape) for v in elements.element_vertices]
+        if [tuple(shape) for shape in pattern._element_shapes] != wanted:
+            raise ValueError("the pattern was not built from these elements' triangles "
+                             "and bend stencils")
+        tri_slots, *bend_slots = pattern.block_slots
+    else:
+        tri_slots = np.empty((0, 3, 3), dtype=np.int64)
+        bend_slots = [np.empty((0, sv.shape[1], sv.shape[1]), dtype=np.int64)
+                      for sv, _ in kinds]
     tri_blocks = np.empty((t_count, 81)) if mode == 1 else np.empty((0, 81))
-    hinge_blocks = np.empty((h_count, 144)) if mode == 1 else np.empty((0, 144))
 
     force, kv, air_force = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
     conditions = np.empty((5, t_count))
@@ -294,21 +315,26 @@ def evaluate(elements, material, x: np.ndarray, v: np.ndarray,
               float(material.stretch_damping), float(material.shear_damping),
               cK, cD, air_coef, wind, force, kv, air_force, conditions,
               tri_blocks, tri_slots, data, mode)
-    hinge_force, hinge_kv = np.zeros((n, 3)), np.zeros((n, 3))
-    theta, grad = np.empty(h_count), np.empty((h_count, 4, 3))
-    kb, weight = float(material.bend_stiffness), elements.hinge_weight
-    _hinges(hv, weight, x, v, kb, float(material.bend_damping), cK, cD,
-            hinge_force, hinge_kv, theta, grad, hinge_blocks, hinge_slots, data, mode)
-    # The reference adds the hinge sums to the membrane sums, then the air's.
-    force += hinge_force
-    kv += hinge_kv
+    # The hinge angles: the LOD criterion's curvature measure (no force).
+    theta, grad = _hinges_kernels.hinge_angles(x, hv, with_gradient=True) if h_count else (
+        np.empty(0), np.empty((0, 4, 3)))
+    kb = float(material.bend_stiffness)
+    bend_sq = 0.0
+    bend_blocks = []
+    for (sv, sc), slots in zip(kinds, bend_slots):
+        k = sv.shape[1]
+        blocks = np.empty((len(sv), 9 * k * k)) if mode == 1 else np.empty((0, 9 * k * k))
+        bend_sq += _stencils(sv, sc, x, v, kb, float(material.bend_damping), cK, cD,
+                             force, kv, blocks, slots, data, mode)
+        if mode == 1:
+            bend_blocks.append(blocks.reshape(len(sv), k, 3, k, 3))
     if air is not None:
         force += air_force
 
     result = _forces.summarise(
-        material, conditions, weight, theta, grad, force, kv,
+        material, conditions, bend_sq, theta, grad, force, kv,
         tri_blocks.reshape(t_count, 3, 3, 3, 3) if mode == 1 else None,
-        hinge_blocks.reshape(h_count, 4, 3, 4, 3) if mode == 1 else None)
+        bend_blocks if mode == 1 else None)
     result.assembled = data.reshape(-1, 3, 3) if fused else None
     return result
 
@@ -319,8 +345,7 @@ def assemble(pattern, evaluation, diagonal: np.ndarray):
     blocks, or its already assembled data (:func:`evaluate` with a pattern)."""
     data = getattr(evaluation, "assembled", None)
     if data is None:
-        return pattern.assemble([evaluation.triangle_blocks, evaluation.hinge_blocks],
-                                diagonal)
+        return pattern.assemble(evaluation.blocks, diagonal)
     # A copy: the evaluation may be reused (a contact re-solve of the same
     # state) and finish() adds the diagonal in place.
     return pattern.finish(data.copy(), diagonal)

@@ -141,8 +141,8 @@ def test_the_paper_configuration_is_bw_equation_15():
                                      - mat.air_drag * v)
     rhs = h * (force + h * ev.stiffness_times_velocity)
     pattern = SparsePattern(sim.mesh.vertex_count,
-                            [sim.elements.triangles, sim.elements.hinge_vertices])
-    matrix = pattern.assemble([ev.triangle_blocks, ev.hinge_blocks], m * (1 + h * mat.air_drag))
+                            sim.elements.element_vertices)
+    matrix = pattern.assemble(ev.blocks, m * (1 + h * mat.air_drag))
     free = np.ones(len(x), dtype=bool)
     free[held[0]] = False
     dofs = np.repeat(free, 3)

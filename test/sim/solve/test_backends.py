@@ -36,8 +36,8 @@ def system(level, seed=0, flat=False, h=1 / 60):
         v = rng.normal(scale=0.3, size=x.shape)
     ev = evaluate(el, MATERIAL, x, v, h * h, h)
     masses = lumped_masses(mesh.uv, mesh.triangles, 0.2)
-    pattern = SparsePattern(mesh.vertex_count, [el.triangles, el.hinge_vertices])
-    matrix = pattern.assemble([ev.triangle_blocks, ev.hinge_blocks], masses)
+    pattern = SparsePattern(mesh.vertex_count, el.element_vertices)
+    matrix = pattern.assemble(ev.blocks, masses)
     rhs = h * (ev.force + masses[:, None] * np.array([0, 0, -9.81]) + h * ev.stiffness_times_velocity)
     return matrix, rhs, pattern, mesh
 
@@ -296,7 +296,7 @@ def test_auto_factorises_larger_graded_meshes_than_uniform_ones():
         mesh = refine_uniform(base_mesh(1.0, 1.0, 4, 4), level)
         assert mesh.vertex_count == counts[level]
         el = precompute(mesh)
-        return SparsePattern(mesh.vertex_count, [el.triangles, el.hinge_vertices]), mesh.uv
+        return SparsePattern(mesh.vertex_count, el.element_vertices), mesh.uv
 
     auto.reset_topology(*topology(small))
     assert auto.name == _factorisation()

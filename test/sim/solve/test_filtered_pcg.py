@@ -31,8 +31,8 @@ def cloth_system(level, seed=0, h=1 / 60, stiffness_scale=1.0):
                              "stretch_stiffness": MATERIAL.stretch_stiffness * stiffness_scale})
     ev = evaluate(el, mat, x, v, h * h, h)
     masses = lumped_masses(mesh.uv, mesh.triangles, 0.2)
-    pattern = SparsePattern(mesh.vertex_count, [el.triangles, el.hinge_vertices])
-    matrix = pattern.assemble([ev.triangle_blocks, ev.hinge_blocks], masses)
+    pattern = SparsePattern(mesh.vertex_count, el.element_vertices)
+    matrix = pattern.assemble(ev.blocks, masses)
     rhs = h * (ev.force + masses[:, None] * np.array([0, 0, -9.81])
                + h * ev.stiffness_times_velocity)
     return matrix, rhs, pattern.diagonal_blocks(matrix), mesh
@@ -124,11 +124,10 @@ def test_pattern_assembly_matches_a_dense_reference():
         scale=0.05, size=(mesh.vertex_count, 3))
     ev = evaluate(el, MATERIAL, x, rng.normal(size=x.shape), 1e-3, 1e-2)
     diagonal = rng.uniform(1, 2, size=mesh.vertex_count)
-    pattern = SparsePattern(mesh.vertex_count, [el.triangles, el.hinge_vertices])
-    assembled = pattern.assemble([ev.triangle_blocks, ev.hinge_blocks], diagonal)
+    pattern = SparsePattern(mesh.vertex_count, el.element_vertices)
+    assembled = pattern.assemble(ev.blocks, diagonal)
     reference = np.zeros((3 * mesh.vertex_count,) * 2)
-    for verts, blocks in ((el.triangles, ev.triangle_blocks),
-                          (el.hinge_vertices, ev.hinge_blocks)):
+    for verts, blocks in zip(el.element_vertices, ev.blocks):
         for e, vs in enumerate(verts):                       # loops: reference only
             for i, vi in enumerate(vs):
                 for j, vj in enumerate(vs):
