@@ -487,6 +487,25 @@ def test_a_failing_step_stops_the_simulation_not_the_node(observer, tmp_path):
         assert node.stop() == 0
 
 
+def test_auto_reset_resets_a_stopped_simulation_by_itself(observer, tmp_path):
+    """Issue 34: a simulation driven into ERROR waited for cloth/reset; with
+    auto_reset the node says how to recover and resets itself after that long."""
+    scene = tmp_path / "heavy.yaml"
+    scene.write_text(SCENE.replace("simulation: {time_step: 0.02, duration: 100.0}",
+                                   "simulation: {time_step: 0.02, duration: 100.0, "
+                                   "gravity: [0, 0, -1.0e12]}"))
+    node = Running(observer, scene, "auto_reset:=0.5")
+    try:
+        assert node.spin_until(lambda: level(node) == 2, 15.0)
+        assert "auto_reset" in node.stats[-1].status[0].message
+        # The scene fails again after each reset: the node keeps resetting, never stuck.
+        assert node.spin_until(lambda: int(node.stat("auto_resets")) >= 2, 60.0), \
+            node.stats[-1].status[0].message
+        assert node.proc.poll() is None and int(node.stat("internal_errors")) == 0
+    finally:
+        assert node.stop() == 0
+
+
 def test_a_burst_of_service_calls_is_answered_every_one(running):
     node = running()
     kinds = [(SetBool, "grasp/other/close", lambda k: SetBool.Request(data=bool(k % 2))),
@@ -646,6 +665,34 @@ def test_poses_at_100_hz_with_recording_are_all_received(observer, tmp_path):
         judged = int(node.stat("poses_received"))
         stale = int(node.stat("rejected_stale")) + int(node.stat("rejected_future"))
         assert judged >= 0.99 * 1501 and stale <= 0.01 * judged
+    finally:
+        assert node.stop() == 0
+
+
+def test_poses_are_judged_on_arrival_on_a_node_behind_real_time(observer, tmp_path):
+    """Issue 34: a node behind real time judged poses when their callback ran, so
+    well-formed poses that waited in the middleware were `stale`.  They are judged
+    at their reception time: on a uniform level-8 mesh (a real-time factor near
+    0.01 here), 1,000 poses at 100 Hz are all accepted.  (Measured with a timeout of
+    0.05 s and 2,000 poses: 1,858 stale before, 5 after - the middleware's own delay
+    on a machine at load 13; at 0.25 s and load 17, 1 of 1,000: so the default 1 s.)"""
+    scene = tmp_path / "slow.yaml"
+    scene.write_text(SCENE.replace("level: 5", "level: 8").replace(
+        "lod: {enabled: true, initial_level: 2}", "lod: {enabled: false}"))
+    node = Running(observer, scene)
+    try:
+        proc = pose_script("""
+            p = pub("hand")
+            start = time.monotonic()
+            for k in range(1000):
+                p.publish(pose(0.5, 1.0 + 0.05 * math.sin(0.01 * k), 1.0))
+                time.sleep(max(0.0, start + 0.01 * (k + 1) - time.monotonic()))
+        """)
+        proc.wait(timeout=60)
+        assert node.spin_until(lambda: int(node.stat("poses_received")) >= 1001, 60.0), \
+            node.stat("poses_received")
+        assert float(node.stat("real_time_factor")) < 0.9          # behind real time
+        assert int(node.stat("rejected_stale")) == 0 and int(node.stat("rejected_future")) == 0
     finally:
         assert node.stop() == 0
 

@@ -219,3 +219,22 @@ def test_the_node_entry_point_is_the_one_that_prints_first():
     text = (REPO / "setup.py").read_text()
     assert "cloth_lod_node = cloth_lod_ros.ros.startup:node_main" in text
     assert "cloth-lod = cloth_lod_ros.tools.cli:main" in text
+
+
+def test_the_node_refuses_a_scene_over_budget_before_its_imports(tmp_path):
+    """``cloth_lod_node --ros-args -p scene:=FILE`` checks FILE before the kernel line
+    and the imports of rclpy and numba (issue 34): one line, exit code 2."""
+    scene = tmp_path / "big.yaml"
+    scene.write_text("cloth: {width: 1, height: 1, base_blocks: [4, 4], level: 12}\n"
+                     "simulation: {time_step: 0.02, duration: 1}\n")
+    code = ("import sys\nfrom cloth_lod_ros.ros.startup import node_main\ntry:\n"
+            "    node_main()\nfinally:\n"
+            "    print(sorted({m.split('.')[0] for m in sys.modules} & "
+            "{'numba', 'scipy', 'rclpy'}))\n")
+    proc = subprocess.run([sys.executable, "-c", code, "--ros-args", "-p", f"scene:={scene}"],
+                          cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("cloth_lod_node: scene error: "), lines
+    assert "the limit is 32,768 triangles" in lines[0]
+    assert proc.stdout.strip() == "[]"

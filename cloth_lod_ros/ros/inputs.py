@@ -149,14 +149,16 @@ def health(*, error: str | None, stats, strain_warn: float, speed_warn: float,
     measured), waiting for ``/clock``, a failed recording.
     """
     if error is not None:
-        return ERROR, f"simulation stopped: {error}; call cloth/reset"
+        return ERROR, (f"simulation stopped: {error}; call cloth/reset (or set auto_reset "
+                       "to reset by itself)")
     strain = float(stats.max_strain) if stats is not None else 0.0
     speed = float(stats.max_speed) if stats is not None else 0.0
     if not (math.isfinite(strain) and math.isfinite(speed)):
         return ERROR, "non-finite strain or speed"
     if strain > 4 * strain_warn or speed > 4 * speed_warn:
         return ERROR, (f"unphysical motion: strain {strain:.3g}, speed {speed:.3g} m/s "
-                       f"(warning bounds {strain_warn:g}, {speed_warn:g} m/s)")
+                       f"(warning bounds {strain_warn:g}, {speed_warn:g} m/s); move the "
+                       "targets back or call cloth/reset (or set auto_reset)")
     if waiting_for_clock:
         return WARN, "waiting for /clock (use_sim_time is true)"
     if strain > strain_warn or speed > speed_warn:

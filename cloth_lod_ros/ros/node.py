@@ -70,7 +70,7 @@ from ..messages.frames import FrameBuilder, standard_diagnostics
 from ..sim import ClothSim, SimulationError
 from ..sim.scene.config import SceneError, load_scene, scene_to_dict
 from . import parameters
-from .inputs import POSE_REJECTIONS, InputQueue, PoseLimits, health, judge_pose
+from .inputs import ERROR, POSE_REJECTIONS, InputQueue, PoseLimits, health, judge_pose
 from .logs import forward_library_logs
 from .parameters import LIVE, LIVE_CHOICES
 from .recording import NodeRecording
@@ -112,6 +112,8 @@ class ClothLodNode(Node):
         self.rejected.update(invalid=0, requests=0, parameters=0)
         self.poses_received = 0
         self.internal_errors = 0
+        self.auto_resets = 0                        # resets by auto_reset
+        self._error_since: float | None = None      # monotonic s when the health became ERROR
         self.error: str | None = None
         self.paused = bool(self.get_parameter("paused").value)
         self._limits = self._pose_limits()
@@ -139,7 +141,8 @@ class ClothLodNode(Node):
                           if self.publish_clock else None)
         for g in self.sim.grasps:
             self.create_subscription(PoseStamped, f"grasp/{g.name}/pose",
-                                     lambda msg, name=g.name: self._on_pose(name, msg),
+                                     lambda msg, info, name=g.name: self._on_pose(
+                                         name, msg, info=info),
                                      POSE_QOS, callback_group=self._poses)
             self._service(SetBool, f"grasp/{g.name}/close",
                           lambda req, res, name=g.name: self._on_close(name, req, res))
@@ -147,7 +150,7 @@ class ClothLodNode(Node):
         for o in self.sim.obstacle_motions:
             self.create_subscription(
                 PoseStamped, f"obstacle/{o.name}/pose",
-                lambda msg, name=o.name: self._on_pose(name, msg, "obstacle"),
+                lambda msg, info, name=o.name: self._on_pose(name, msg, "obstacle", info),
                 POSE_QOS, callback_group=self._poses)
         self._service(Trigger, "cloth/reset", self._on_reset)
         self._service(Trigger, "cloth/step", self._on_step)
@@ -301,15 +304,19 @@ class ClothLodNode(Node):
                 "try again")
 
     # -- inputs (input threads; never wait for a step) --------------------------
-    def _on_pose(self, name: str, msg: PoseStamped, kind: str = "grasp") -> None:
-        """A pose on ``<kind>/<name>/pose`` (kind ``grasp`` or ``obstacle``)."""
+    def _on_pose(self, name: str, msg: PoseStamped, kind: str = "grasp",
+                 info: dict | None = None) -> None:
+        """A pose on ``<kind>/<name>/pose`` (kind ``grasp`` or ``obstacle``); ``info``:
+        rclpy's message info (``received_timestamp``: ns, system clock, when the
+        middleware received it)."""
         self.poses_received += 1
         topic = f"{kind}/{name}/pose"
         try:
             p, q = msg.pose.position, msg.pose.orientation
             reason, position, orientation = judge_pose(
                 msg.header.frame_id, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w],
-                msg.header.stamp.sec, msg.header.stamp.nanosec, self._now_s(), self._limits)
+                msg.header.stamp.sec, msg.header.stamp.nanosec, self._arrival_s(info),
+                self._limits)
             # The bag takes accepted poses as received and rejected ones in a
             # bounded form, both within the recording's input budget (bag/recorder.py).
             if self.recording.recorder is not None:
@@ -532,6 +539,23 @@ class ClothLodNode(Node):
         self._sim_start = self.sim.time
         self._progress = collections.deque()
 
+    def _arrival_s(self, info: dict | None) -> float:
+        """When a message arrived, on the clock outputs are stamped with (s).
+
+        A step holds the interpreter (compiled code) for as long as it takes, so a
+        pose may wait in the middleware's queue for seconds on a node behind real
+        time; judged against the time its callback runs, a well-formed pose would be
+        ``stale``.  On the system clock the middleware's reception time is used; on
+        simulated time (``publish_clock``, ``use_sim_time``) the wait is not known
+        in that clock's seconds, and the callback's time stands."""
+        now = self._now_s()
+        received = (info or {}).get("received_timestamp") or 0
+        if received > 0 and not self.publish_clock and not self._uses_ros_clock():
+            waited = (time.time_ns() - received) * 1e-9
+            if 0.0 < waited < 3600.0:       # a clock step: the callback's time
+                now -= waited
+        return now
+
     def _now_s(self) -> float:
         """The clock outputs are stamped with (s): simulated time with publish_clock."""
         if self.publish_clock:
@@ -601,6 +625,7 @@ class ClothLodNode(Node):
         recording = self.recording.status()
         level, message = self._health(rtf)
         self._last_level = level
+        self._auto_reset(level, message, now)
         values = {"paused": str(self.paused).lower(),
                   "wall_time_s": f"{now - self._session_wall_start:.6f}",
                   "real_time_factor": f"{(sim.time - self._sim_start) / max(wall, 1e-9):.3f}",
@@ -609,6 +634,7 @@ class ClothLodNode(Node):
                   "poses_received": str(self.poses_received),
                   "rejected_poses": str(self._rejected_poses()),
                   "internal_errors": str(self.internal_errors),
+                  "auto_resets": str(self.auto_resets),
                   "recording": recording}
         values.update({f"rejected_{k}": str(v) for k, v in self.rejected.items()})
         stamp = self._stamp()
@@ -624,6 +650,22 @@ class ClothLodNode(Node):
                 self.live.publish(sim, stamp[0] * 1_000_000_000 + stamp[1], values)
             except Exception as exc:
                 self.get_logger().error(f"live view: {exc!r}", throttle_duration_sec=5.0)
+
+    def _auto_reset(self, level: int, message: str, now: float) -> None:
+        """With ``auto_reset`` > 0: queue a reset once the health has been ERROR (a
+        stopped simulation, unphysical motion) for that many seconds."""
+        if level < ERROR:
+            self._error_since = None
+            return
+        if self._error_since is None:
+            self._error_since = now
+        after = float(self.get_parameter("auto_reset").value)
+        if after > 0 and now - self._error_since >= after:
+            if self.queue.put_command("reset"):
+                self.auto_resets += 1
+                self._error_since = None
+                self.get_logger().warning(f"auto_reset: {message}; ERROR for {after:g} s, "
+                                          "resetting the scene")
 
     def _publish_diagnostics(self) -> None:
         """``/diagnostics``: one status with numbers a tool can plot."""

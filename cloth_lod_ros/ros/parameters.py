@@ -85,6 +85,9 @@ def declare_parameters(node) -> None:
         "WARN above this strain | |w| - 1 | (ERROR above 4x)", "", 1e-3, 100.0))
     node.declare_parameter("speed_warn", 20.0, _float_descriptor(
         "WARN above this particle speed (ERROR above 4x)", "m/s", 1e-3, 1e4))
+    node.declare_parameter("auto_reset", 0.0, _float_descriptor(
+        "reset the scene by itself (as cloth/reset) once the simulation has stopped, or "
+        "its health has been ERROR, for this long; 0 = never", "s", 0.0, 3600.0))
     node.declare_parameter("colour_by", "level", string(
         description="surface colours: 'level' or 'shading'"))
     node.declare_parameter("wireframe", True, string(description="publish the wireframe"))

@@ -223,10 +223,33 @@ def announce(prog: str, log_to_stderr: bool = True) -> KernelCache:
     return cache
 
 
+def _scene_argument(argv) -> str | None:
+    """The value of ``-p scene:=VALUE`` (or ``--param``) on a ROS command line, if any
+    (the last one wins, as in rcl)."""
+    value = None
+    for flag, item in zip(argv, argv[1:]):
+        if flag in ("-p", "--param") and item.startswith("scene:="):
+            value = item[len("scene:="):]
+    return value
+
+
 def node_main(args=None) -> None:
     """Entry point ``cloth_lod_node``: the first line, then the node
-    (:func:`cloth_lod_ros.ros.node.main`, whose imports take the seconds after it)."""
+    (:func:`cloth_lod_ros.ros.node.main`, whose imports take the seconds after it).
+
+    A scene given on the command line (``-p scene:=...``) is checked first: one that
+    is refused (a bad file, or over the cost budget, ``sim/scene/budget.py``) is
+    said in one line, exit code 2, before those imports (the node checks the scene
+    again, wherever it comes from)."""
     start = time.monotonic()
+    scene = _scene_argument(sys.argv if args is None else list(args))
+    if scene:
+        from ..sim.scene.config import SceneError, load_scene     # PyYAML only
+        try:
+            load_scene(scene)
+        except SceneError as exc:
+            print(f"cloth_lod_node: scene error: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
     announce("cloth_lod_node", log_to_stderr=False)     # the node logs on the ROS logger
     from .node import main
     main(args, started=start)

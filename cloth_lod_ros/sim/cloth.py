@@ -207,6 +207,15 @@ class ClothSim(HeldInputs, ObstacleInputs):
                                             clamped=mask if mask.any() else None)
         self.solver.reset_topology()
 
+    def _reach_anchors(self, grasp, time: float) -> list:
+        """The other held points of ``grasp`` at ``time``: ``[(position (3,) m, rest
+        distance in (u, v) m)]`` of every other closed grasp and active pin."""
+        anchors = [(g.position, float(np.linalg.norm(g.uv - grasp.uv)))
+                   for g in self.grasps if g is not grasp and g.closed]
+        anchors += [(p.target(time), float(np.linalg.norm(p.uv - grasp.uv)))
+                    for p in self.pins if p.active(time)]
+        return anchors
+
     def _adopt_hierarchy(self) -> None:
         """Refresh the compact arrays after the hierarchy's topology changed."""
         h = self.hierarchy
@@ -308,7 +317,7 @@ class ClothSim(HeldInputs, ObstacleInputs):
             lod_ms = 1e3 * (_time.perf_counter() - lod_start)
         for g in self.grasps:
             if g.closed:
-                g.advance(next_time, h)
+                g.advance(next_time, h, self._reach_anchors(g, next_time))
         held = self._held(next_time)
         self._clamp_bending(held[0])
         # Kinematic obstacles: their motion over this step is known now; they

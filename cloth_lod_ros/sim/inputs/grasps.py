@@ -24,6 +24,16 @@ __all__ = ["Grasp"]
 
 log = logging.getLogger(__name__)
 
+#: How far a live target may stretch the cloth between a grasp and another held
+#: point (a closed grasp, an active pin): their distance is kept within
+#: ``(1 + MAX_REACH_STRAIN)`` times their rest distance in (u, v) (the cloth is a
+#: flat rectangle, so the straight line in (u, v) is the shortest path through it).
+#: A pose beyond that (a grasp sent to the workspace's edge while another holds the
+#: cloth) would stretch it without limit into unphysical motion (issue 34).  0.5: a
+#: mean strain along the line of at most half the node's ERROR bound (``strain_warn``
+#: 0.3 x 4 = 1.2), leaving a factor of 2 for the strain's concentration at a point hold.
+MAX_REACH_STRAIN = 0.5
+
 
 def checked_pose(position, orientation, what: str) -> tuple[np.ndarray, Rotation | None]:
     """A commanded pose as ``(position (3,) m, Rotation or None)``, checked:
@@ -80,6 +90,7 @@ class Grasp:
     jumps: int = 0
     lagging: bool = False
     holding_in_place: bool = False      # the command is "stay where it closed", not a pose
+    clamped: bool = False               # the live target is beyond reach (see reachable)
 
     @classmethod
     def from_config(cls, cfg) -> "Grasp":
@@ -145,9 +156,41 @@ class Grasp:
             position = self.position
         return position, self.command_rotation or self.rotation
 
-    def advance(self, time: float, h: float) -> None:
-        """Move the effective pose towards the target of ``time``, speed limited."""
+    def reachable(self, target: np.ndarray, anchors) -> np.ndarray:
+        """``target`` (m) moved into the reach of every anchor: ``anchors`` is a
+        list of ``(position (3,) m, rest distance m)`` of the other held points;
+        the result lies within ``(1 + MAX_REACH_STRAIN) x`` each rest distance
+        of each (alternating projections onto the balls; exact for one anchor)."""
+        point = np.asarray(target, dtype=float)
+        balls = [(np.asarray(x, dtype=float), (1.0 + MAX_REACH_STRAIN) * d) for x, d in anchors]
+        for _ in range(20):
+            moved = False
+            for centre, radius in balls:
+                offset = point - centre
+                distance = float(np.linalg.norm(offset))
+                if distance > radius * (1 + 1e-12):
+                    point = centre + offset * (radius / distance)
+                    moved = True
+            if not moved:
+                break
+        return point
+
+    def advance(self, time: float, h: float, anchors=()) -> None:
+        """Move the effective pose towards the target of ``time``, speed limited;
+        a live target (not a script) is first brought within reach of ``anchors``
+        (:meth:`reachable`)."""
         target, target_rotation = self.target_at(time)
+        if anchors and not len(self.waypoints) and self.command_position is not None:
+            reached = self.reachable(target, anchors)
+            if not np.array_equal(reached, target):
+                if not self.clamped:
+                    log.info("grasp %r: target %.3f m beyond what the cloth reaches from the "
+                             "other held points; held at the reach", self.name,
+                             float(np.linalg.norm(reached - target)))
+                self.clamped = True
+                target = reached
+            else:
+                self.clamped = False
         step = target - self.position
         distance = float(np.linalg.norm(step))
         limit = self.max_speed * h
