@@ -27,27 +27,45 @@ CASE = {c.name: c for c in CASES}
 KNOWN = {("fold_in_half", False): "the scene's grasp path strains the cloth to 0.25 in its "
                                   "converged motion too (issue 31, open)",
          # The contact cases of issue 31 that do not hold yet (quick flavours,
-         # measured; none has two triangles crossing at any step):
+         # measured; in none do two triangles cross at any step):
+         ("table_drape", True): "a particle bounces off the table at 1.15x its landing "
+                                "speed at 0.30 s (issue 31, open)",
+         ("table_drape", False): "a particle bounces off the table at 1.23x its landing "
+                                 "speed at 0.43 s (issue 31, open)",
          ("bar_drop", True): "not at rest at 1.2 s: 1.2 cm/s (issue 31, open)",
          ("bar_drop", False): "not at rest at 1.2 s: 26.8 cm/s, the cloth still sliding on "
                               "the bar (issue 31, open)",
          ("slot_drop", True): "not at rest at 1.2 s: 4.4 cm/s (issue 31, open)",
-         ("slot_drop", False): "a particle leaves the floor at 1.71x its landing speed at "
-                               "0.62 s; 5.9 cm/s at 1.2 s (issue 31, open)",
-         ("grasps_cross", True): "a particle leaves the table at 2.32x its landing speed at "
-                                 "0.85 s (issue 31, open)",
-         ("corner_pull", True): "a particle leaves an obstacle at 1.24x its landing speed at "
-                                "0.70 s (issue 31, open)"}
+         ("slot_drop", False): "not at rest at 1.2 s: 5.9 cm/s (issue 31, open)",
+         ("grasps_cross", True): "a particle bounces off the table at 1.23x its landing "
+                                 "speed at 0.65 s (issue 31, open)",
+         ("corner_pull", True): "a particle bounces off an obstacle at 1.25x its landing "
+                                "speed at 0.70 s (issue 31, open)",
+         ("corner_pull", False): "a particle bounces off an obstacle at 1.47x its landing "
+                                 "speed at 0.75 s (issue 31, open)"}
+
+
+class KnownFailure(Exception):
+    """A run of :data:`KNOWN` that fails as measured (any other failure of the
+    test, such as layers crossing, is a failure)."""
 
 
 @pytest.mark.parametrize("lod", [True, False], ids=["lod_on", "lod_off"])
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_case_stays_finite_bounded_and_conserving(case, lod, request):
-    if (case.name, lod) in KNOWN:
+    known = (case.name, lod) in KNOWN
+    if known:
         # strict: the day the scene's path is fixed, this says so
-        request.applymarker(pytest.mark.xfail(reason=KNOWN[case.name, lod], strict=True))
+        request.applymarker(pytest.mark.xfail(reason=KNOWN[case.name, lod], strict=True,
+                                              raises=KnownFailure))
     result = run_case(case, lod, quick=True)
     bounds = case.bounds
+    if known:
+        # The layers hold even where another bound does not yet.
+        assert result.crossed_steps == 0 and not any(f.startswith("layers")
+                                                     for f in result.failures)
+        if not result.passed:
+            raise KnownFailure("; ".join(result.failures))
     assert result.passed, result.failures
     # The checker's verdict, restated on the recorded series.
     h = stress.build_scene(case, lod, quick=True).simulation.time_step
@@ -68,7 +86,7 @@ def test_case_stays_finite_bounded_and_conserving(case, lod, request):
 
 
 def test_every_case_has_a_quick_and_a_full_flavour_and_builds():
-    assert len({c.name for c in CASES}) == len(CASES) == 17
+    assert len({c.name for c in CASES}) == len(CASES) == 18
     for case in CASES:
         assert case.quick.duration <= case.full.duration
         assert case.quick.level <= case.full.level
@@ -161,15 +179,15 @@ def test_a_linearisation_blow_up_is_caught_without_the_step_size_control(monkeyp
 
 
 def test_a_contact_that_throws_and_a_scene_still_moving_are_reported():
-    """The strip lands on the table edge at about 0.6 m/s; 0.35 s in, every
-    particle is given 2 m/s upwards (an injected kick, as the landing kick of
-    issue 31 was): it leaves the table at over 3x its landing speed, and a
-    cloth flying off is not at rest."""
+    """The strip lands on the table edge at about 0.6 m/s (at 0.06 s); 0.1 s
+    in, every particle is given 2 m/s upwards (an injected kick, as the
+    landing kick of issue 31 was): it bounces off the table at over 3x its
+    landing speed, and a cloth flying off is not at rest."""
     case = CASE["strip_over_edge"]
     kicked = dataclasses.replace(
         case, quick=Variant(0.45, 4),
         bounds=dataclasses.replace(case.bounds, landing=1.1, rest=0.4),
-        events=(Event(0.35, "velocity", ((0.0, 0.0, 2.0),)),))
+        events=(Event(0.1, "velocity", ((0.0, 0.0, 2.0),)),))
     result = run_case(kicked, lod=False, quick=True)
     checks = [f.split(":")[0] for f in result.failures]
     assert "landing" in checks and "rest" in checks
@@ -224,7 +242,7 @@ def test_the_layer_check_finds_no_crossing_in_a_flat_sheet_in_any_plane(seed):
 # -- core fixes the suite found ---------------------------------------------------
 
 def _scene(level=3, lod=None, grasps=(), pins=(), gravity=(0, 0, -9.81), obstacles=(),
-           origin=(0.0, 0.0, 1.0), integrator="sdirk2"):
+           origin=(0.0, 0.0, 1.0), integrator="sdirk2", self_collision=False):
     return scene_from_dict({
         "name": "stress_test",
         "cloth": {"width": 1.0, "height": 1.0, "base_blocks": [4, 4], "level": level,
@@ -237,6 +255,9 @@ def _scene(level=3, lod=None, grasps=(), pins=(), gravity=(0, 0, -9.81), obstacl
                        "integrator": integrator},
         "solver": {"tolerance": 1e-6},
         "lod": lod or {"enabled": False},
+        # These tests are about the step and the grasps: the cloth alone, as
+        # before self-collision was on by default.
+        "self_collision": {"enabled": self_collision},
     })
 
 
@@ -294,6 +315,25 @@ def test_a_fast_impact_stays_physical_with_the_step_size_control(control, integr
     else:
         assert all(s.substeps == 1 for s in stats)
         assert strain > 0.3 and energy > 5 * initial
+
+
+@pytest.mark.xfail(strict=True, reason="measured: from 0.083 s 9, then 24 pairs of triangles "
+                   "cross; the fail-safe stops zones of up to 732 particles per frame, and the "
+                   "strain reaches 0.79 by 0.133 s (issue 31, open)")
+def test_a_fast_impact_keeps_the_layers_apart_with_self_collision():
+    """The impact above with self-collision on (the default, auto): the free
+    corners whip round the sphere at 11-13 m/s and fold over; no two
+    triangles may cross at any step, and the strain stays that of the
+    impact without folds (< 0.1)."""
+    from cloth_lod_ros.tools.stress.intersect import intersecting_pairs
+    ball = {"type": "sphere", "centre": [0.5, 0.5, 0.0], "radius": 0.25}
+    sim = ClothSim(_scene(level=5, obstacles=[ball], origin=(0.0, 0.0, 0.3),
+                          self_collision=True))
+    sim.state.velocities[:] = [0.0, 0.0, -5.0]
+    for _ in range(6):
+        s = sim.step()
+        assert not len(intersecting_pairs(sim.positions, sim.triangles))
+        assert s.max_strain < 0.1
 
 
 def test_patch_grasp_under_lod_holds_the_particles_splits_make_inside_it():
