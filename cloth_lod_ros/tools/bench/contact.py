@@ -87,7 +87,8 @@ def _reference_run(spec: dict, tmp: Path, tag: str, cache: Path | None, fingerpr
     from .process import run_in_process
     path = None
     if cache is not None:
-        path = cache / f"{spec['scene']}_{_cache_key(spec, _scene_text(spec['scene']), fingerprint)}.json"
+        key = _cache_key(spec, _scene_text(spec["scene"]), fingerprint)
+        path = cache / f"{Path(spec['scene']).stem}_{key}.json"
         if path.exists():
             progress(f"  {tag:48s} cached: {path}")
             return dict(json.loads(path.read_text()), cached=str(path))
@@ -194,7 +195,7 @@ def _row(plan: dict, candidates: list[dict], refs: dict, times: list[float]) -> 
                for c in candidates[1:])
     scene = plan["scene"]
     return dict(
-        scene=plan["name"], level=scene.cloth.level, frame_period_s=scene.simulation.time_step,
+        scene=scene.name, scene_arg=plan["name"], level=scene.cloth.level, frame_period_s=scene.simulation.time_step,
         integrator=scene.simulation.integrator, lod=bool(scene.lod.enabled),
         times=times, rms_frac=[e["rms"] for e in errors], max_frac=[e["max"] for e in errors],
         reference=plan["ref"].describe(), reference_time_step=plan["ref"].time_step,
