@@ -87,7 +87,8 @@ def _reference_run(spec: dict, tmp: Path, tag: str, cache: Path | None, fingerpr
     from .process import run_in_process
     path = None
     if cache is not None:
-        path = cache / f"{spec['scene']}_{_cache_key(spec, _scene_text(spec['scene']), fingerprint)}.json"
+        key = _cache_key(spec, _scene_text(spec["scene"]), fingerprint)
+        path = cache / f"{Path(spec['scene']).stem}_{key}.json"
         if path.exists():
             progress(f"  {tag:48s} cached: {path}")
             return dict(json.loads(path.read_text()), cached=str(path))
@@ -194,7 +195,7 @@ def _row(plan: dict, candidates: list[dict], refs: dict, times: list[float]) -> 
                for c in candidates[1:])
     scene = plan["scene"]
     return dict(
-        scene=plan["name"], level=scene.cloth.level, frame_period_s=scene.simulation.time_step,
+        scene=scene.name, scene_arg=plan["name"], level=scene.cloth.level, frame_period_s=scene.simulation.time_step,
         integrator=scene.simulation.integrator, lod=bool(scene.lod.enabled),
         times=times, rms_frac=[e["rms"] for e in errors], max_frac=[e["max"] for e in errors],
         reference=plan["ref"].describe(), reference_time_step=plan["ref"].time_step,
@@ -212,32 +213,7 @@ def _row(plan: dict, candidates: list[dict], refs: dict, times: list[float]) -> 
                                             max(c["loadavg_end"] for c in costs)])
 
 
-def _pct(x) -> str:
-    return "—" if x is None else (f"{100 * x:.2g} %" if x < 0.1 else f"{100 * x:.1f} %")
-
-
 def markdown(result: dict) -> str:
     """The contact table (``contact.md``, and the report's section)."""
-    rows = result["rows"]
-    times = rows[0]["times"] if rows else []
-    lines = [f"Contact scenes at their default settings against the converged motion of the "
-             f"same model (uniform mesh at the scene's level, `sdirk2` at a fixed h_ref = "
-             f"H/{result.get('divisor', 8)}), {result['repeats']} timed repeats each, one "
-             f"pinned thread ({result['machine']['platform']}). Error: RMS distance over a "
-             "21 × 21 grid of material points as a fraction of the 1 m side (largest in "
-             "brackets). The reference's own error: the whole difference between it and the "
-             "same run at 2 h_ref (a bound for any order of convergence ≥ 1; the second-order "
-             "estimate is a third of it). Cost: CPU seconds per simulated second of the "
-             "default run, median (min–max).", "",
-             "| scene | level | " + " | ".join(f"error at {t:g} s" for t in times)
-             + " | reference's own error | CPU s / sim s | steps / frame | solves / frame |",
-             "|---|---|" + "---|" * len(times) + "---|---|---|---|"]
-    for r in rows:
-        lines.append(
-            f"| {r['scene']} | {r['level']} | "
-            + " | ".join(f"{_pct(e)} ({_pct(m)})" for e, m in zip(r["rms_frac"], r["max_frac"]))
-            + f" | ≤ {_pct(max(r['reference_diff_rms_frac']))} | "
-            f"{r['cpu_per_sim_s_median']:.3g} ({r['cpu_per_sim_s_min']:.3g}–"
-            f"{r['cpu_per_sim_s_max']:.3g}) | {r['substeps_per_frame']:.2f} | "
-            f"{r['solves_per_frame']:.1f} |")
-    return "\n".join(lines) + "\n"
+    from .performance import contact_table
+    return contact_table(result)

@@ -107,7 +107,7 @@ def open_client(scheduler: str | None = None, workers: int | None = None,
     # Dask's housekeeping runs on timers in every process of a local cluster:
     # the event-loop tick (20 ms), the system monitor (0.5 s) and the memory
     # monitor (0.1 s).  Between them they took 2-3 % of a core in the client
-    # process and again in each worker (an 8 s busy task, one worker; 0.5 %
+    # process and again in each worker (an 8 s busy task, one worker; 0.4-0.8 %
     # each at the intervals below), CPU the runs' cores lose on a 2-core
     # machine.  The local workers and the scheduler and nannies in this
     # process run them at these slower intervals; an existing cluster keeps

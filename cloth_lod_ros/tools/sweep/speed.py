@@ -83,6 +83,84 @@ def _table_steps(out: Path) -> tuple[float, float, int]:
     return (sum(float(r["cpu_s"]) for r in ok), sum(float(r["wall_s"]) for r in ok), len(ok))
 
 
+_PAIRED_RUNS = [(k, b) for k in (500.0, 1000.0, 2000.0, 4000.0) for b in (5.0e-5, 4.0e-4)]
+
+
+def _one_run(k: float, b: float, duration: float = 2.0) -> tuple[float, float]:
+    """One ``hang_two_corners`` run (stretch ``k`` N/m, bend ``b`` N m): the CPU
+    seconds of this thread and the wall seconds inside ``sim.step()``."""
+    from ...sim import ClothSim, load_scene
+    sim = ClothSim(load_scene("hang_two_corners", [f"material.stretch_stiffness={k!r}",
+                                                   f"material.bend_stiffness={b!r}"]))
+    cpu = wall = 0.0
+    while sim.time < duration - 1e-9:
+        c0, w0 = _time.thread_time(), _time.perf_counter()
+        sim.step()
+        cpu += _time.thread_time() - c0
+        wall += _time.perf_counter() - w0
+    return cpu, wall
+
+
+def _serve(threaded: bool) -> None:
+    """A plain process for --paired: one run per line of stdin (``[k, b]``), in
+    the main thread or in a second thread; its times as a JSON line."""
+    import threading
+    for line in sys.stdin:
+        k, b = json.loads(line)
+        if threaded:
+            box = []
+            t = threading.Thread(target=lambda: box.append(_one_run(k, b)))
+            t.start()
+            t.join()
+            result = box[0]
+        else:
+            result = _one_run(k, b)
+        print(json.dumps(result), flush=True)
+
+
+def paired(rounds: int) -> None:
+    """The same runs alternated run by run between a plain process's main thread,
+    a plain process's second thread and a one-worker local cluster's task thread
+    (all three kept alive, kernels loaded first); prints each run's CPU seconds
+    and, per place, the median ratio to the main thread's."""
+    import statistics
+    from .cluster import close, open_client
+    client, cluster = open_client(None, 1)
+    procs = {}
+    try:
+        for place in ("main", "thread"):
+            procs[place] = subprocess.Popen(
+                [sys.executable, "-c", "import sys; from cloth_lod_ros.tools.sweep.speed import "
+                 f"_serve; _serve({place == 'thread'})"], stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE, text=True, env=_env())
+
+        def call(place, k, b):
+            if place == "worker":
+                return client.submit(_one_run, k, b, pure=False).result()
+            procs[place].stdin.write(json.dumps([k, b]) + "\n")
+            procs[place].stdin.flush()
+            return json.loads(procs[place].stdout.readline())
+
+        order = ["main", "thread", "worker"]
+        for place in order:                      # imports and kernels, not timed
+            call(place, 1000.0, 1.0e-4)
+        cpu = {place: [] for place in order}
+        for i, (k, b) in enumerate(_PAIRED_RUNS * rounds):
+            for place in (order if i % 2 == 0 else order[::-1]):
+                cpu[place].append(call(place, k, b)[0])
+            print(f"run {i + 1}: " + ", ".join(f"{p} {cpu[p][-1]:.3f}" for p in order)
+                  + f" CPU s (load {os.getloadavg()[0]:.1f})", flush=True)
+        for place in ("thread", "worker"):
+            r = [a / m for a, m in zip(cpu[place], cpu["main"])]
+            print(f"{place} / main thread, CPU s per run: median {statistics.median(r):.3f} "
+                  f"(min {min(r):.2f}, max {max(r):.2f}, {len(r)} runs)")
+    finally:
+        for proc in procs.values():
+            proc.stdin.close()
+            proc.wait()
+        close(client, cluster)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m cloth_lod_ros.tools.sweep.speed",
@@ -93,7 +171,14 @@ def main(argv=None) -> int:
                              "hang_two_corners variants)")
     parser.add_argument("--rounds", type=int, default=1, help="alternated rounds (default 1)")
     parser.add_argument("--workers", type=int, help="the sweep's --workers (default: its own)")
+    parser.add_argument("--paired", type=int, metavar="ROUNDS",
+                        help="instead: the CPU time of the same runs in a worker, a plain "
+                             "process's main thread and a second thread, alternated run by "
+                             "run (8 runs per round)")
     args = parser.parse_args(argv)
+    if args.paired:
+        paired(args.paired)
+        return 0
     py = sys.executable
     n_workers = args.workers or len(os.sched_getaffinity(0))
     print(f"{args.spec}: serial (one process, runs in turn) vs cloth-lod sweep "
