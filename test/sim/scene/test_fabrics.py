@@ -192,3 +192,13 @@ def test_the_documented_table_is_the_codes():
         assert numbers == pytest.approx([fabric.density, fabric.stretch_stiffness,
                                          fabric.shear_stiffness, fabric.bend_stiffness],
                                         rel=1e-9), name
+
+
+def test_a_sweep_can_vary_the_preset_of_a_scene_that_writes_its_material():
+    from cloth_lod_ros.tools.sweep.spec import resolve_scene
+    base = scene_to_dict(load_scene("hang_two_corners"))
+    for params in ({"material.density": 0.3, "material.preset": "wool"},
+                   {"material.preset": "wool", "material.density": 0.3}):
+        material = resolve_scene(base, params)["material"]
+        assert material["density"] == 0.3
+        assert material["bend_stiffness"] == FABRICS["wool"].bend_stiffness
