@@ -41,7 +41,7 @@ __all__ = [
     "SceneError", "ClothConfig", "MaterialConfig", "AirConfig", "PinConfig", "LodConfig",
     "ObstacleConfig", "ContactConfig", "GraspConfig", "SelfCollisionConfig",
     "SimulationConfig", "SolverConfig", "SceneConfig",
-    "load_scene", "scene_from_dict", "scene_to_dict", "apply_overrides",
+    "load_scene", "scene_from_dict", "scene_to_dict", "apply_overrides", "clear_for_preset",
     "find_scene_file", "builtin_scene_names", "scenes_directory", "self_collision_on",
     "MAX_SCENE_BYTES", "MAX_NESTING", "MAX_TRIANGLES", "MAX_INTEGER",
 ]
@@ -579,6 +579,18 @@ def scene_to_dict(scene: SceneConfig) -> dict:
     return plain(scene)
 
 
+def clear_for_preset(data: dict, keys) -> dict:
+    """``data`` (a raw scene mapping) ready for the overrides ``keys`` (dotted paths):
+    when they choose ``material.preset``, without the scene's own values of the fields
+    a preset fills - an override's preset replaces them, and the overrides that set
+    those fields still apply on top, in any order."""
+    if "material.preset" not in keys or not isinstance(data.get("material"), dict):
+        return data
+    out = dict(data)
+    out["material"] = {k: v for k, v in data["material"].items() if k not in PRESET_FIELDS}
+    return out
+
+
 def load_scene(scene: str | os.PathLike,
                overrides: list[str] | dict | None = None) -> SceneConfig:
     """Load a scene by built-in name or path, apply overrides, validate.
@@ -599,12 +611,7 @@ def load_scene(scene: str | os.PathLike,
     if overrides:
         items = list(overrides.items()) if isinstance(overrides, dict) else [
             parse_override(o) for o in overrides]
-        if any(key == "material.preset" for key, _ in items) and isinstance(
-                data.get("material"), dict):
-            # A preset chosen on the command line replaces the file's values of the
-            # fields it fills (other overrides still apply on top of it).
-            data["material"] = {k: v for k, v in data["material"].items()
-                                if k not in PRESET_FIELDS}
+        data = clear_for_preset(data, [key for key, _ in items])
         for key, value in items:
             data = apply_overrides(data, {key: value})
     data.setdefault("name", path.stem)

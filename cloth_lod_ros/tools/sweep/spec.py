@@ -59,8 +59,8 @@ from typing import Any
 import numpy as np
 
 from ...sim import SceneError, load_scene
-from ...sim.scene.config import (apply_overrides, find_scene_file, parse_override, scene_from_dict,
-                                 scene_to_dict)
+from ...sim.scene.config import (apply_overrides, clear_for_preset, find_scene_file,
+                                 parse_override, scene_from_dict, scene_to_dict)
 from ..reference import ConvergedReference
 
 __all__ = ["SweepError", "SweepSpec", "PlannedRun", "load_spec", "plan_runs", "run_id_of",
@@ -216,7 +216,7 @@ def resolve_scene(base: dict, params: dict) -> dict:
     Raises:
         SceneError: a key or value the loader refuses (its message).
     """
-    data = base
+    data = clear_for_preset(base, list(params))
     for key, value in params.items():
         value = json.loads(_canonical(value))       # numpy draws -> plain numbers
         data = _set_item(data, key, value) if INDEXED.match(key) else apply_overrides(

@@ -178,3 +178,27 @@ def test_the_fabrics_tool_prints_the_table_and_a_reading(capsys):
     assert main(["--overhang", "0.06", "--mass-per-area", "0.2"]) == 0
     out = capsys.readouterr().out
     assert f"material.bend_stiffness={0.2 * 9.80665 * 0.03 ** 3:.3g}" in out
+
+
+def test_the_documented_table_is_the_codes():
+    """docs/scenes.md's preset table states what the presets set."""
+    from pathlib import Path
+    text = (Path(__file__).resolve().parents[3] / "docs" / "scenes.md").read_text()
+    for name, fabric in FABRICS.items():
+        rows = [line for line in text.splitlines() if line.startswith(f"| `{name}` |")]
+        assert len(rows) == 1, name
+        cells = [c.strip() for c in rows[0].strip("|").split("|")]
+        numbers = [float(c.split()[0]) for c in cells[2:6]]
+        assert numbers == pytest.approx([fabric.density, fabric.stretch_stiffness,
+                                         fabric.shear_stiffness, fabric.bend_stiffness],
+                                        rel=1e-9), name
+
+
+def test_a_sweep_can_vary_the_preset_of_a_scene_that_writes_its_material():
+    from cloth_lod_ros.tools.sweep.spec import resolve_scene
+    base = scene_to_dict(load_scene("hang_two_corners"))
+    for params in ({"material.density": 0.3, "material.preset": "wool"},
+                   {"material.preset": "wool", "material.density": 0.3}):
+        material = resolve_scene(base, params)["material"]
+        assert material["density"] == 0.3
+        assert material["bend_stiffness"] == FABRICS["wool"].bend_stiffness
