@@ -187,6 +187,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="time every built-in scene instead (LOD on and off, "
                              "self-collision's cost where the cloth never meets itself; "
                              "quick: three small cases); writes scenes.json and scenes.md")
+    parser.add_argument("--local", action="store_true",
+                        help="adaptivity where detail is local instead: lifted_corner, "
+                             "table_corner, small_ball (config/bench/), uniform levels against "
+                             "adaptive settings from a converged reference cached in "
+                             "/tmp/cloth_lod_local; writes local.json, local.md, local_*.png "
+                             "(quick: one scene, small levels)")
     parser.add_argument("--from-json", metavar="BENCH_JSON",
                         help="run nothing: rewrite the CSV, plot and summary of a finished "
                              "run from its bench.json (into --out, default beside it)")
@@ -328,12 +334,14 @@ def run(args) -> int:
     say = (lambda *a: None) if getattr(args, "quiet", False) else (
         lambda *a: print(*a, flush=True))
     for flag, module, function, table in (("solvers", "backends", "run_backends", "solvers.md"),
-                                          ("scenes", "scenes", "run_scenes", "scenes.md")):
+                                          ("scenes", "scenes", "run_scenes", "scenes.md"),
+                                          ("local", "local", "run_local", "local.md")):
         if getattr(args, flag, False):
             import importlib
             suite = getattr(importlib.import_module(f"{__package__}.{module}"), function)
             try:
-                result = suite(Path(args.out), repeats=args.repeats or 3, quick=args.quick,
+                repeats = args.repeats or (1 if flag == "local" else 3)
+                result = suite(Path(args.out), repeats=repeats, quick=args.quick,
                                cpu=args.cpu, progress=say)
             except BenchError as exc:
                 print(f"cloth-lod bench: {exc}", file=sys.stderr)
