@@ -123,13 +123,20 @@ def front_cost(uniform: list[tuple[float, float]], error: float) -> float:
 
 
 def run_local(out: Path, repeats: int = 1, quick: bool = False, cpu: int | None = None,
-              progress=print, cache: Path | None = Path("/tmp/cloth_lod_local")) -> dict:
-    """Run the local-detail suite; write ``local.json``, ``local.md`` and the plots."""
+              progress=print, cache: Path | None = Path("/tmp/cloth_lod_local"),
+              scenes=None) -> dict:
+    """Run the local-detail suite (``scenes``: names of LOCAL_SCENES, default all);
+    write ``local.json``, ``local.md`` and the plots."""
     from ...sim.scene.config import load_scene
     from ...sim.mesh.sampling import material_grid
     from .runner import write_suite
     q = QUICK if quick else {}
-    scenes = q.get("scenes", LOCAL_SCENES)
+    scenes = scenes or q.get("scenes", LOCAL_SCENES)
+    unknown = [name for name in scenes if name not in LOCAL_SCENES]
+    if unknown:
+        from .plan import BenchError
+        raise BenchError(f"--local-scenes: unknown {unknown[0]!r} (one of "
+                         f"{', '.join(LOCAL_SCENES)})")
     levels = q.get("uniform", UNIFORM_LEVELS)
     adaptive = q.get("adaptive", ADAPTIVE)
     max_levels = q.get("max_levels", MAX_LEVELS)

@@ -193,6 +193,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                              "adaptive settings from a converged reference cached in "
                              "/tmp/cloth_lod_local; writes local.json, local.md, local_*.png "
                              "(quick: one scene, small levels)")
+    parser.add_argument("--local-scenes", nargs="+", metavar="NAME",
+                        help="with --local: these of its scenes only")
     parser.add_argument("--from-json", metavar="BENCH_JSON",
                         help="run nothing: rewrite the CSV, plot and summary of a finished "
                              "run from its bench.json (into --out, default beside it)")
@@ -341,8 +343,10 @@ def run(args) -> int:
             suite = getattr(importlib.import_module(f"{__package__}.{module}"), function)
             try:
                 repeats = args.repeats or (1 if flag == "local" else 3)
+                extra = ({"scenes": tuple(args.local_scenes)}
+                         if flag == "local" and getattr(args, "local_scenes", None) else {})
                 result = suite(Path(args.out), repeats=repeats, quick=args.quick,
-                               cpu=args.cpu, progress=say)
+                               cpu=args.cpu, progress=say, **extra)
             except BenchError as exc:
                 print(f"cloth-lod bench: {exc}", file=sys.stderr)
                 return 3
@@ -350,6 +354,8 @@ def run(args) -> int:
             result["command"] = " ".join(
                 ["cloth-lod bench", f"--{flag}"] + (["--quick"] if args.quick else [])
                 + ([f"--repeats {args.repeats}"] if args.repeats else [])
+                + ([f"--local-scenes {' '.join(args.local_scenes)}"]
+                   if flag == "local" and getattr(args, "local_scenes", None) else [])
                 + [f"--out {args.out}"])
             stem = table.removesuffix(".md")
             (Path(args.out) / f"{stem}.json").write_text(json.dumps(result, indent=1))
