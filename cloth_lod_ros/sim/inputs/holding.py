@@ -87,11 +87,20 @@ class HeldInputs:
         motion has put them).  Held particles are never merged, so it stays
         resolved.  Rounds of splits, each of the triangles containing a missing
         lattice point; design §2."""
+        self._resolve_patches([(p.uv, p.radius) for p in self.scene.pins if p.radius > 0])
+
+    def _resolve_patches(self, patches) -> bool:
+        """Refine the hierarchy until every ``(uv, radius)`` patch (m) has each
+        particle of the uniform maximum-level mesh there (see
+        :meth:`_resolve_pin_patches`); whether anything was split."""
         h, cloth = self.hierarchy, self.scene.cloth
         block = cloth.width / cloth.base_blocks[0]
         wanted = [uniform_vertices_within(cloth.width, cloth.height, block, cloth.level,
-                                          p.uv, p.radius) for p in self.scene.pins if p.radius > 0]
+                                          uv, radius) for uv, radius in patches]
         points = np.concatenate([np.zeros((0, 2))] + wanted)
+        split = False
+        state = getattr(self, "state", None)        # none yet at set-up
+        time = state.time if state is not None else 0.0
         tolerance = 1e-9 * max(cloth.width, cloth.height)
         for _ in range(2 * (cloth.level + 2)):
             mesh, _, triangle_ids = h.active_mesh()
@@ -101,7 +110,9 @@ class HeldInputs:
                 break
             locator = PointLocator(mesh.uv, mesh.triangles, mesh.width, mesh.height)
             for t in np.unique(triangle_ids[locator.locate(missing)[0]]):
-                h.refine(int(t))            # one split meanwhile as a neighbour is skipped
+                # one split meanwhile as a neighbour is skipped
+                split |= bool(h.refine(int(t), time))
+        return split
 
 
     def _make_pin(self, cfg) -> Pin:
@@ -183,6 +194,17 @@ class HeldInputs:
         g = self.grasp(name)
         if g.closed:
             return
+        if (self.hierarchy is not None and g.width > 0
+                and getattr(self.scene.lod, "criterion", "curvature") == "detail"):
+            # The detail criterion's grasps: the patch holds what the uniform
+            # maximum-level mesh holds (a coarse patch would hold fewer
+            # particles, and take the ones later splits make wherever the
+            # motion has put them: another boundary condition).
+            self._sync_hierarchy()
+            if self._resolve_patches([(g.uv, 0.5 * g.width)]):
+                if self.obstacles:
+                    self._lift_new_particles()
+                self._adopt_hierarchy()
         node, _ = self._particle_at(g.uv, g.tolerance, name)
         nodes = np.array([node], dtype=np.int64)
         if g.width > 0:

@@ -362,6 +362,10 @@ class LodPolicy:
                 _, first = np.unique(candidates, return_index=True)
                 refine = candidates[np.sort(first)].tolist()
 
+        uniform = False
+        if self.detail and cfg.uniform_share < 1.0 and len(triangle_ids):
+            refine, uniform = self._uniform_when_most_is_fine(hierarchy, triangle_ids, refine)
+
         # Simplify: split particles all of whose hinges are flat and settled.
         merge, energy, kinetic, bound = [], np.zeros(0), np.zeros(0), np.zeros(0)
         vertices, kids, ok = np.zeros(0, int), None, None
@@ -426,9 +430,38 @@ class LodPolicy:
             bound = 0.5 * self.material.density * added.area * cfg.max_merge_speed**2
             low = added.total <= bound
             keep = keep[low]
+            if uniform:
+                # Merge out of the uniform mesh only when enough goes at once.
+                fine = hierarchy.level[np.maximum(kids[keep, 0], 0)] >= hierarchy.max_level
+                counts = (kids[keep] >= 0).sum(axis=1)
+                merged = (counts * 2.0 ** -hierarchy.level[np.maximum(kids[keep, 0], 0)])[fine]
+                total = (2.0 ** -hierarchy.level[triangle_ids]).sum()
+                if 1.0 - merged.sum() / total >= 0.8 * cfg.uniform_share:
+                    keep = keep[:0]
+                    low = low[:0]
             merge = [(a, b) for a, b in hierarchy.vertex_edge[vertices[keep]].tolist()]
             energy, kinetic, bound = added.total[low], added.kinetic[low], bound[low]
         return LodDecision(refine, merge, energy, kinetic, bound)
+
+    def _uniform_when_most_is_fine(self, hierarchy: Hierarchy48, triangle_ids: np.ndarray,
+                                   refine) -> tuple[list, bool]:
+        """When to stop adapting: if the share of the cloth's area at the maximum
+        level, counting what ``refine`` (pool ids) takes there, reaches
+        ``uniform_share``, every active triangle below it is refined instead (a
+        uniform mesh costs no more than an adaptive one that is almost all fine,
+        and saves the criterion's churn).  Returns the refinements and whether
+        the mesh is (to be) uniform."""
+        top = hierarchy.max_level
+        levels = hierarchy.level[triangle_ids]
+        area = 2.0 ** -levels.astype(float)       # in base-triangle areas
+        listed = np.zeros(hierarchy.level.shape[0], dtype=bool)
+        listed[np.asarray(refine, dtype=np.int64)] = True
+        going = listed[triangle_ids] & (levels == top - 1)
+        share = (area[levels >= top].sum() + area[going].sum()) / area.sum()
+        if share < self.config.uniform_share:
+            return refine, False
+        below = triangle_ids[levels < top]
+        return below[np.argsort(levels[levels < top], kind="stable")].tolist(), True
 
     def recheck_on_pools(self, hierarchy: Hierarchy48, time: float, merged,
                          detail_points: np.ndarray | None, lookahead: float):

@@ -312,6 +312,11 @@ class LodConfig:
                                         "h^2 / side (h the edge of the finest level, side the "
                                         "cloth's larger side), coarsen_threshold scaled with "
                                         "it; unset: the thresholds as given")
+    uniform_share: float = _spec("float", "", gt=0, le=1, default=0.7,
+                                 doc="criterion detail: once this share of the cloth's area "
+                                     "is at the maximum level (or is to be), refine all of it "
+                                     "there (a uniform mesh costs no more), and merge again "
+                                     "only when that brings the share below 0.8 x this")
     velocity_horizon: float = _spec("float", "s", ge=0, default=0.1,
                                     doc="criterion detail: a velocity detail counts as the "
                                         "position detail it makes in this time")

@@ -30,7 +30,7 @@ from .report import PAPER, own_error_line
 __all__ = ["SOURCES", "anchor", "collect", "contact_table", "machine_line", "markdown", "write_report"]
 
 #: The files a report is made of, in the order of its sections.
-SOURCES = ("bench.json", "scenes.json", "solvers.json", "contact.json")
+SOURCES = ("bench.json", "scenes.json", "solvers.json", "contact.json", "local.json")
 NOT_RECORDED = "not recorded"
 DEFAULT_REPEATS = 3
 
@@ -238,6 +238,17 @@ def contact_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _local_section(result: dict, link: str) -> list[str]:
+    """``--local``: the table per scene (:func:`.local.markdown`) and its plots."""
+    from .local import markdown as local_markdown
+    scenes = list(dict.fromkeys(r["scene"] for r in result["rows"]))
+    md = ["## Where detail is local: `cloth-lod bench --local`", "",
+          f"Command: {_suite_command(result, '--local', link)}  ",
+          machine_line(result["machine"]), "", local_markdown(result)]
+    md += [f"![{name}: error against cost]({link}/local_{name}.png)" for name in scenes]
+    return md + [""]
+
+
 def anchor(heading: str) -> str:
     """The fragment a Markdown renderer (GitHub's rule) gives a heading:
     lower case, punctuation other than ``-`` and ``_`` dropped, spaces to ``-``."""
@@ -256,7 +267,8 @@ def markdown(results: dict[str, dict], results_link: str, command: str,
     out_dir = out_dir or results_link
     sections = {"bench": (_bench_section, f"{results_link}/bench.png"),
                 "scenes": (_scenes_section, out_dir), "solvers": (_solvers_section, out_dir),
-                "contact": (_contact_section, out_dir)}
+                "contact": (_contact_section, out_dir),
+                "local": (_local_section, results_link)}
     parts = {key: render(results[key], arg) for key, (render, arg) in sections.items()
              if key in results}
     md = ["# Performance", "",

@@ -193,6 +193,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                              "with the reference's own error (references cached under "
                              "$CLOTH_LOD_CACHE, default /tmp/cloth_lod_bench_cache); writes "
                              "contact.json and contact.md")
+    parser.add_argument("--local", action="store_true",
+                        help="adaptivity where detail is local instead: lifted_corner, "
+                             "table_corner, small_ball (config/bench/), uniform levels against "
+                             "adaptive settings from a converged reference cached in "
+                             "/tmp/cloth_lod_local; writes local.json, local.md, local_*.png "
+                             "(quick: one scene, small levels)")
+    parser.add_argument("--local-scenes", nargs="+", metavar="NAME",
+                        help="with --local: these of its scenes only")
     parser.add_argument("--from-json", metavar="BENCH_JSON",
                         help="run nothing: rewrite the CSV, plot and summary of a finished "
                              "run from its bench.json (into --out, default beside it)")
@@ -335,13 +343,17 @@ def run(args) -> int:
         lambda *a: print(*a, flush=True))
     for flag, module, function, table in (("solvers", "backends", "run_backends", "solvers.md"),
                                           ("scenes", "scenes", "run_scenes", "scenes.md"),
-                                          ("contact", "contact", "run_contact", "contact.md")):
+                                          ("contact", "contact", "run_contact", "contact.md"),
+                                          ("local", "local", "run_local", "local.md")):
         if getattr(args, flag, False):
             import importlib
             suite = getattr(importlib.import_module(f"{__package__}.{module}"), function)
             try:
-                result = suite(Path(args.out), repeats=args.repeats or 3, quick=args.quick,
-                               cpu=args.cpu, progress=say)
+                repeats = args.repeats or (1 if flag == "local" else 3)
+                extra = ({"scenes": tuple(args.local_scenes)}
+                         if flag == "local" and getattr(args, "local_scenes", None) else {})
+                result = suite(Path(args.out), repeats=repeats, quick=args.quick,
+                               cpu=args.cpu, progress=say, **extra)
             except BenchError as exc:
                 print(f"cloth-lod bench: {exc}", file=sys.stderr)
                 return 3
@@ -349,6 +361,8 @@ def run(args) -> int:
             result["command"] = " ".join(
                 ["cloth-lod bench", f"--{flag}"] + (["--quick"] if args.quick else [])
                 + ([f"--repeats {args.repeats}"] if args.repeats else [])
+                + ([f"--local-scenes {' '.join(args.local_scenes)}"]
+                   if flag == "local" and getattr(args, "local_scenes", None) else [])
                 + [f"--out {args.out}"])
             stem = table.removesuffix(".md")
             (Path(args.out) / f"{stem}.json").write_text(json.dumps(result, indent=1))
