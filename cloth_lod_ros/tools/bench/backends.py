@@ -45,7 +45,7 @@ def run_backends(out: Path, repeats: int = 3, quick: bool = False, cpu: int | No
                  backends=BACKENDS, progress=print) -> dict:
     """Run every case with every backend; return and write the results."""
     from .process import run_in_process     # pinned single-thread workers
-    from .runner import write_suite
+    from .machine import write_suite
     from ...sim.solve.backends import available_methods
     backends = [b for b in backends if b in available_methods()]    # optional ones
     cases = QUICK_CASES if quick else CASES

@@ -130,7 +130,7 @@ def run_contact(out: Path, repeats: int = 3, quick: bool = False, cpu: int | Non
     from ...sim.mesh.sampling import material_grid
     from ..reference import ConvergedReference
     from .process import run_in_process
-    from .runner import write_suite
+    from .machine import write_suite
     settings = dict(QUICK) if quick else dict(level=None, duration=DURATION, times=TIMES,
                                               divisor=8)
     if divisor is not None:

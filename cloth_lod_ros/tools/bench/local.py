@@ -129,7 +129,7 @@ def run_local(out: Path, repeats: int = 1, quick: bool = False, cpu: int | None 
     write ``local.json``, ``local.md`` and the plots."""
     from ...sim.scene.config import load_scene
     from ...sim.mesh.sampling import material_grid
-    from .runner import write_suite
+    from .machine import write_suite
     q = QUICK if quick else {}
     scenes = scenes or q.get("scenes", LOCAL_SCENES)
     unknown = [name for name in scenes if name not in LOCAL_SCENES]

@@ -87,7 +87,7 @@ def run_scenes(out: Path, repeats: int = 3, quick: bool = False, cpu: int | None
                cases=None, progress=print) -> dict:
     """Run every case ``repeats`` times in rounds; write and return the table."""
     from .process import run_in_process     # pinned single-thread workers
-    from .runner import write_suite
+    from .machine import write_suite
     from ...sim.solve.backends import available_methods
     cases = cases or (QUICK_SCENE_CASES if quick else SCENE_CASES)
     if "cholmod" not in available_methods():
