@@ -83,15 +83,17 @@ def total_energy(sim) -> float:
 
 def rest_energy(level: int) -> float:
     """Energy (J) of the swing's cloth hanging at rest: the same scene with strong
-    isotropic drag, run by backward Euler until its kinetic energy is below 1e-7 J
-    (the swing starts with about 0.9 J above rest)."""
+    isotropic drag, run by backward Euler until its kinetic energy is below 1e-6 J
+    (the swing starts with about 0.9 J above rest: the table's percentages do not see
+    the difference)."""
     from ..sim import ClothSim
-    # A direct solve: an iterative one's residual keeps the cloth trembling above 1e-7 J.
+    # A direct solve: an iterative one's residual keeps the cloth trembling above it.
     sim = ClothSim.from_scene("hang_two_corners", swing_overrides(level, "backward_euler") + [
-        "material.air_drag=4", "simulation.error_tolerance=0", "solver.method=direct"])
+        "material.air_drag=4", "simulation.error_tolerance=0", "solver.method=direct",
+        "simulation.newton_iterations=4"])
     while sim.time < 60.0:
         sim.step()
-        if sim.time > 5.0 and sim.energy()["kinetic"] < 1e-7:
+        if sim.time > 5.0 and sim.energy()["kinetic"] < 1e-6:
             return total_energy(sim)
     raise RuntimeError(f"the damped swing is not at rest after 60 s (kinetic energy "
                        f"{sim.energy()['kinetic']:.3g} J)")
