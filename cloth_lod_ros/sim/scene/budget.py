@@ -105,7 +105,7 @@ def estimate(scene) -> SceneCost:
         solves *= sim.newton_iterations
     if scene.obstacles:
         solves *= scene.contact.friction_rounds
-    if scene.self_collision.enabled:
+    if scene.self_collision.enabled:    # `auto` counts as on: this bounds the step
         solves *= 1 + scene.self_collision.max_resolves
     return SceneCost(triangles=tris, particles=tris // 2 + math.isqrt(2 * tris) + 1,
                      finest_triangles=finest, memory_bytes=BYTES_PER_TRIANGLE * tris,

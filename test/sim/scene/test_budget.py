@@ -72,15 +72,22 @@ def test_counts_of_pins_grasps_obstacles_and_waypoints_are_limited():
 def test_the_first_steps_work_counts_every_solve_it_may_take():
     # 2^13 triangles (4 x 4 blocks at level 8) are well within the start limit, but
     # backward Euler with 50 Newton iterations and 6 friction rounds may solve 300
-    # times in one step: 2.5 million triangle-solves.
+    # times in one step: 2.5 million triangle-solves.  (Self-collision off: its
+    # re-solves multiply this, below.)
     data = scene(cloth={"level": 8},
                  simulation={"integrator": "backward_euler", "newton_iterations": 50},
-                 obstacles=[{"type": "plane"}])
+                 obstacles=[{"type": "plane"}], self_collision={"enabled": False})
     with pytest.raises(SceneError, match="up to 300 linear solves per step"):
         scene_from_dict(data)
     data["simulation"]["newton_iterations"] = 2
     cost = budget.estimate(scene_from_dict(data))
     assert cost.solves_per_step == 2 * 6 and cost.step_work == 8192 * 12
+    # Self-collision may re-solve each of those max_resolves more times; `auto`
+    # counts as on, since the budget bounds what the first step may take.
+    data["cloth"]["level"] = 4
+    for enabled in (True, "auto"):
+        data["self_collision"] = {"enabled": enabled, "max_resolves": 4}
+        assert budget.estimate(scene_from_dict(data)).solves_per_step == 2 * 6 * 5
 
 
 def test_every_builtin_scene_is_within_the_budget():
