@@ -469,7 +469,7 @@ def test_committed_performance_page_is_the_report_of_the_committed_results():
     command it quotes after changing the generator or the results)."""
     from cloth_lod_ros.tools.bench.performance import collect, markdown
     results = collect(REPO / "resource" / "readme" / "bench")
-    assert set(results) == {"bench", "scenes", "solvers", "contact"}
+    assert set(results) == {"bench", "scenes", "solvers", "contact", "local"}
     page = markdown(results, "../resource/readme/bench",
                     "cloth-lod bench --report docs/performance.md --out resource/readme/bench",
                     "resource/readme/bench")

@@ -59,8 +59,8 @@ REFERENCE_TOLERANCE = 1e-4
 UNIFORM_LEVELS = (4, 5, 6)
 #: (label, overrides) of the adaptive settings, each run at maximum levels 6 and 7.
 ADAPTIVE = (("curvature, 1 mm", ["lod.criterion=curvature"]),
-            ("detail, tolerance 1", ["lod.criterion=detail", "lod.tolerance=1.0"]),
-            ("detail, tolerance 2", ["lod.criterion=detail", "lod.tolerance=2.0"]))
+            ("detail, tolerance 4", ["lod.criterion=detail", "lod.tolerance=4.0"]),
+            ("detail, tolerance 1", ["lod.criterion=detail", "lod.tolerance=1.0"]))
 MAX_LEVELS = (6, 7)
 QUICK = dict(scenes=("lifted_corner",), uniform=(4, 5), adaptive=ADAPTIVE[:2], max_levels=(5,),
              reference_level=6, duration=0.3)
@@ -193,8 +193,9 @@ def run_local(out: Path, repeats: int = 1, quick: bool = False, cpu: int | None 
                                  factor=None if front is None else front / cost[label]))
     result = write_suite(out, "local", rows, repeats, cpu, start, markdown)
     result.update(references=references, duration=duration)
+    result["table"] = markdown(result)
     (out / "local.json").write_text(json.dumps(result, indent=1))
-    (out / "local.md").write_text(markdown(result))
+    (out / "local.md").write_text(result["table"])
     for name in scenes:
         plot_scene(out / f"local_{name}.png", name, [r for r in rows if r["scene"] == name],
                    references.get(name))
