@@ -18,8 +18,8 @@ state, the change of the cloth's total mechanical energy
 
 that merging that one candidate alone would make: the membrane energy of its
 one or two parents against its two or four children, the bend energy of the
-hinges that touch m against the hinges that replace them (the chord hinge,
-and the diamond's outer edges with m replaced by the parent's corner), the
+stencils around m before and after (:func:`..physics.bending.local_bend_change`,
+one merge at a time on its seven-ring neighbourhood), the
 kinetic energy of m and both ends before and after the velocity change of
 :func:`cloth_lod_ros.sim.mesh.hierarchy.merge_velocity_change`, and
 ``m_mid g · (x_mid − ½(x_left + x_right))``.  It is the exact energy
@@ -27,8 +27,10 @@ difference of the merged and unmerged meshes (tested against whole-mesh
 energies), vectorised over candidates: no per-candidate Python loop.
 Merges applied one after another interact only through a shared edge end
 (its mass and velocity: the ``kinetic`` part, which
-:func:`merge_kinetic_change` recomputes) or a shared outer edge (the triangle
-across it); :meth:`cloth_lod_ros.sim.lod.policy.LodPolicy.apply` deals with both.
+:func:`merge_kinetic_change` recomputes), a shared outer edge (the triangle
+across it) or bend stencils in common (within seven rings);
+:meth:`cloth_lod_ros.sim.lod.policy.LodPolicy.apply` deals with the first two,
+the decision keeps its merges seven rings apart (policy._apart).
 """
 
 from __future__ import annotations
