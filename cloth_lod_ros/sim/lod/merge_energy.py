@@ -18,8 +18,8 @@ state, the change of the cloth's total mechanical energy
 
 that merging that one candidate alone would make: the membrane energy of its
 one or two parents against its two or four children, the bend energy of the
-stencils around m before and after (:func:`..physics.bending.local_bend_change`,
-one merge at a time on its seven-ring neighbourhood), the
+hinges that touch m against the hinges that replace them (the chord hinge,
+and the diamond's outer edges with m replaced by the parent's corner), the
 kinetic energy of m and both ends before and after the velocity change of
 :func:`cloth_lod_ros.sim.mesh.hierarchy.merge_velocity_change`, and
 ``m_mid g · (x_mid − ½(x_left + x_right))``.  It is the exact energy
@@ -27,22 +27,18 @@ difference of the merged and unmerged meshes (tested against whole-mesh
 energies), vectorised over candidates: no per-candidate Python loop.
 Merges applied one after another interact only through a shared edge end
 (its mass and velocity: the ``kinetic`` part, which
-:func:`merge_kinetic_change` recomputes), a shared outer edge (the triangle
-across it) or bend stencils in common (within seven rings);
-:meth:`cloth_lod_ros.sim.lod.policy.LodPolicy.apply` deals with the first two,
-the decision keeps its merges seven rings apart (policy._apart).
+:func:`merge_kinetic_change` recomputes) or a shared outer edge (the triangle
+across it); :meth:`cloth_lod_ros.sim.lod.policy.LodPolicy.apply` deals with both.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from types import SimpleNamespace
 
 import numpy as np
 
 from . import merge_energy_kernels
 from ..physics.elements import Elements, hinge_weights, triangle_maps
-from ..physics.bending import local_bend_change
 from ..physics.energies import membrane_energies
 from ..physics.hinges_kernels import hinge_angles       # compiled when numba is there
 from ..mesh.hierarchy import Hierarchy48, merge_velocity_change
@@ -94,20 +90,11 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
     k = len(vertices)
     if k == 0:
         return MergeEnergy(np.zeros(0), np.zeros(0), np.zeros(0))
-    # The membrane, kinetic and gravity parts; the bend part is the stencils'
-    # (physics.bending), added by _stencil_bend_change.
-    membrane = SimpleNamespace(stretch_stiffness=material.stretch_stiffness,
-                               shear_stiffness=material.shear_stiffness, bend_stiffness=0.0)
     compiled = merge_energy_kernels.merge_energies(hierarchy, elements, vertex_ids, triangle_ids,
-                                                   vertices, x, v, masses, membrane, gravity,
+                                                   vertices, x, v, masses, material, gravity,
                                                    hinge_angle)
     if compiled is not None:        # one compiled pass, bitwise this reference's numbers
-        total, kinetic, area = compiled
-        return MergeEnergy(total + _stencil_bend_change(hierarchy, elements, vertex_ids,
-                                                        triangle_ids, vertices, x,
-                                                        material.bend_stiffness),
-                           kinetic, area)
-    bend_stiffness, material = material.bend_stiffness, membrane
+        return MergeEnergy(*compiled)
     h = hierarchy
     mid = np.searchsorted(vertex_ids, vertices)                      # compact m
     ends = np.searchsorted(vertex_ids, h.vertex_edge[vertices])      # (k, 2) l, r
@@ -129,6 +116,8 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
     delta = np.bincount(np.concatenate([np.nonzero(has)[0], np.nonzero(kid_has)[0]]),
                         weights=sign * energy, minlength=k)
 
+    delta += _bend_change(elements, vertex_ids, h, mid, ends, parent_tri, parent_area, has,
+                          x, material.bend_stiffness, hinge_angle)
 
     # Kinetic and gravity: m's mass goes to the ends, which share the velocity change.
     particles = np.column_stack([mid, ends])
@@ -136,30 +125,7 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
     chord_mid = 0.5 * (x[ends[:, 0]] + x[ends[:, 1]])
     delta += kinetic + masses[mid] * ((x[mid] - chord_mid) @ np.asarray(gravity, dtype=float))
     area = np.bincount(np.nonzero(has)[0], weights=parent_area, minlength=k)
-    delta += _stencil_bend_change(h, elements, vertex_ids, triangle_ids, vertices, x,
-                                  bend_stiffness)
     return MergeEnergy(delta, kinetic, area)
-
-
-def _stencil_bend_change(h: Hierarchy48, elements: Elements, vertex_ids: np.ndarray,
-                         triangle_ids: np.ndarray, vertices: np.ndarray, x: np.ndarray,
-                         bend_stiffness: float) -> np.ndarray:
-    """Bend part of :func:`merge_energy_change`, J, ``(k,)``: the exact change of
-    the stencil energy of each merge alone (:func:`~..physics.bending.local_bend_change`
-    on the merge's neighbourhood)."""
-    out = np.zeros(len(vertices))
-    if bend_stiffness == 0.0 or elements.rest_uv is None:
-        return out
-    for c, m in enumerate(vertices):
-        parents = h.vertex_parents[m]
-        parents = parents[parents >= 0]
-        kids = h.children[parents].ravel()
-        old = np.searchsorted(triangle_ids, kids)
-        new = np.searchsorted(vertex_ids, h.tri[parents])
-        out[c] = local_bend_change(elements.rest_uv, elements.triangles, x, bend_stiffness,
-                                   int(np.searchsorted(vertex_ids, m)), old, new,
-                                   elements.clamped)
-    return out
 
 
 def merge_kinetic_change(masses: np.ndarray, velocities: np.ndarray) -> np.ndarray:

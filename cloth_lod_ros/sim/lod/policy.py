@@ -37,7 +37,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from . import check_kernels, policy_kernels, round_kernels
 from ..physics.elements import Elements
@@ -303,8 +302,6 @@ class LodPolicy:
                                         self.gravity, hinge_angle=measures.angle)
             bound = 0.5 * self.material.density * added.area * cfg.max_merge_speed**2
             low = added.total <= bound
-            low[low] = _apart(elements, np.searchsorted(vertex_ids, vertices[keep[low]]),
-                              np.searchsorted(triangle_ids, np.asarray(refine, dtype=np.int64)))
             keep = keep[low]
             merge = [(a, b) for a, b in hierarchy.vertex_edge[vertices[keep]].tolist()]
             energy, kinetic, bound = added.total[low], added.kinetic[low], bound[low]
@@ -411,42 +408,6 @@ class LodPolicy:
                 moved.update(edge)
                 changed.update(outer)
         return len(splits), merges
-
-
-def _apart(elements: Elements, mids: np.ndarray, refined: np.ndarray,
-           rings: int = 7) -> np.ndarray:
-    """``(k,)`` bool: the merges (compact split particles ``mids``, in order)
-    kept so that no two, and no merge and a refined triangle (compact ids
-    ``refined``), are within ``rings`` edges.  Each merge's energy change is
-    computed alone on the mesh before the decision; the bend stencils
-    (physics.bending) reach three rings around a merge, so merges further
-    apart add exactly their own changes."""
-    n = elements.vertex_count
-    tri = elements.triangles
-    rows = tri[:, [0, 1, 2, 1, 2, 0]].ravel()
-    cols = tri[:, [1, 2, 0, 0, 1, 2]].ravel()
-    adj = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
-    blocked = np.zeros(n, dtype=bool)
-
-    def block(seeds):
-        reached = np.zeros(n, dtype=bool)
-        reached[seeds] = True
-        front = np.flatnonzero(reached)
-        for _ in range(rings):
-            front = np.unique(adj[front].indices)
-            front = front[~reached[front]]
-            reached[front] = True
-        blocked[reached] = True
-
-    valid = refined[(refined >= 0) & (refined < len(tri))]
-    if len(valid):
-        block(np.unique(tri[valid].ravel()))
-    kept = np.zeros(len(mids), dtype=bool)
-    for i, m in enumerate(mids):
-        if not blocked[m]:
-            kept[i] = True
-            block(np.array([m]))
-    return kept
 
 
 @dataclass

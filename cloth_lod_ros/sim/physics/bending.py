@@ -55,7 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["BendStencils", "bend_stencils", "bend_energy", "bend_matrix", "local_bend_change"]
+__all__ = ["BendStencils", "bend_stencils", "bend_energy", "bend_matrix"]
 
 _OCT = np.pi / 4.0
 
@@ -91,8 +91,7 @@ def _directions(uv: np.ndarray, tri: np.ndarray):
 
 
 def bend_stencils(uv: np.ndarray, tri: np.ndarray,
-                  clamped: np.ndarray | None = None,
-                  fit_only: np.ndarray | None = None) -> BendStencils:
+                  clamped: np.ndarray | None = None) -> BendStencils:
     """Stencils of the squared-Hessian energy (module docstring) of the mesh
     with rest coordinates ``uv`` ``(n, 2)`` m and triangles ``tri`` ``(t, 3)``
     ``(apex, left, right)`` (apex at the right angle).
@@ -199,8 +198,6 @@ def bend_stencils(uv: np.ndarray, tri: np.ndarray,
         np.add.at(G, c_vertex[cs], 2.0 * c_area[cs, None, None]
                   * vec[:, :, None] * vec[:, None, :])
     fitted = np.flatnonzero(np.abs(G).reshape(n, 9).sum(axis=1) > 0)
-    if fit_only is not None:          # (n,) bool: the fitted stencils wanted (a local sum)
-        fitted = fitted[np.asarray(fit_only, dtype=bool)[fitted]]
     if len(fitted):
         # Fits see the free sheet and the clamp's border, not the clamp's
         # inside (flat: a fit across the curvature's jump would blur it).
@@ -265,56 +262,3 @@ def bend_matrix(stencils: BendStencils, n: int) -> sp.csr_matrix:
     D = sp.vstack(mats).tocsr()
     return (D.T @ D).tocsr()
 
-
-def _stencil_centres(stencils: BendStencils) -> list:
-    """The vertex each stencil belongs to (its first), per kind."""
-    return [verts[:, 0] for verts, _ in stencils.kinds]
-
-
-def local_bend_change(uv: np.ndarray, tri: np.ndarray, x: np.ndarray, bend_stiffness: float,
-                      removed: int, old_triangles: np.ndarray, new_triangles: np.ndarray,
-                      clamped: np.ndarray | None = None, rings: int = 7) -> float:
-    """Bend energy change (J) of replacing triangles ``old_triangles`` (indices
-    into ``tri``) by ``new_triangles`` ``(p, 3)`` and removing vertex ``removed``
-    (a merge), positions ``x`` ``(n, 3)`` m unchanged.
-
-    Exact: every stencil depends on its centre's two-ring, its incident
-    triangles and their diamonds, all within three rings of the change for the
-    stencils it alters; the energies before and after are summed over the
-    stencils centred within four rings of ``removed``, built on the submesh of
-    ``rings`` (7) rings, whose own border is too far to alter them.
-    """
-    n = len(uv)
-    rows = tri[:, [0, 1, 2, 1, 2, 0]].ravel()
-    cols = tri[:, [1, 2, 0, 0, 1, 2]].ravel()
-    adj = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
-    dist = np.full(n, -1)
-    dist[removed] = 0
-    front = np.array([removed])
-    for r in range(1, rings + 1):
-        nxt = np.unique(adj[front].indices)
-        nxt = nxt[dist[nxt] < 0]
-        dist[nxt] = r
-        front = nxt
-    region = dist >= 0
-    keep_tri = np.flatnonzero(region[tri].all(axis=1))
-    local = np.full(n, -1)
-    local[region] = np.arange(region.sum())
-    sub_uv, sub_x = uv[region], x[region]
-    sub_clamp = None if clamped is None else np.asarray(clamped)[region]
-    near = (dist[region] >= 0) & (dist[region] <= 4)
-
-    def energy(triangles):
-        st = bend_stencils(sub_uv, triangles, sub_clamp, fit_only=near)
-        total = 0.0
-        for (verts, coef), centre in zip(st.kinds, _stencil_centres(st)):
-            pick = near[centre]
-            d = np.einsum("sk,skd->sd", coef[pick], sub_x[verts[pick]])
-            total += float(np.sum(d * d))
-        return 0.5 * bend_stiffness * total
-
-    before = energy(local[tri[keep_tri]])
-    old = np.zeros(len(tri), dtype=bool)
-    old[old_triangles] = True
-    after_tri = np.concatenate([local[tri[keep_tri[~old[keep_tri]]]], local[new_triangles]])
-    return energy(after_tri) - before
