@@ -261,3 +261,4 @@ def bend_matrix(stencils: BendStencils, n: int) -> sp.csr_matrix:
         mats.append(sp.csr_matrix((coef.ravel(), (rows, verts.ravel())), shape=(s, n)))
     D = sp.vstack(mats).tocsr()
     return (D.T @ D).tocsr()
+

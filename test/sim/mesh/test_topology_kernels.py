@@ -59,11 +59,11 @@ def _build(mesh, compiled):
         _same(getattr(elements_first, name), getattr(elements, name))
     storage = solve_pattern.PatternStorage()
     pattern = solve_pattern.SparsePattern(elements.vertex_count,
-                                          elements.element_vertices, storage)
+                                          [elements.triangles, elements.hinge_vertices], storage)
     # What a solver builds: from the mesh's edge structure when compiled.
     assert (elements.edges is not None) == compiled
     from_edges = solve_pattern.SparsePattern(elements.vertex_count,
-                                             elements.element_vertices,
+                                             [elements.triangles, elements.hinge_vertices],
                                              edges=elements.edges,
                                              hinge_triangles=elements.hinge_triangles)
     return hinges, elements, pattern, from_edges
@@ -148,7 +148,7 @@ def test_errors_and_fallbacks_are_the_reference_ones():
 def test_pattern_from_edges_falls_back_when_the_structure_does_not_fit():
     runtime_compiled.use(True)
     elements = elements_kernels.precompute(refine_uniform(base_mesh(1.0, 1.0, 2, 2), 2))
-    kinds = elements.element_vertices
+    kinds = [elements.triangles, elements.hinge_vertices]
     reference = solve_pattern.SparsePattern(elements.vertex_count, kinds)
     ends, half_edge, corner = elements.edges
     slots = np.empty(len(reference._owned), np.int64)

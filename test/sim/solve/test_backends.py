@@ -253,9 +253,10 @@ def test_every_solve_of_a_step_is_counted_and_timed(monkeypatch):
         stats = sim.step()
         assert stats.solves == len(calls)
         assert stats.solve_ms >= sum(calls) * 0.999
-        # A factorising backend, and no solve of an unchanged system here
-        # (that is the layer-reaction solve of self-collision).
-        assert stats.factorisations == stats.solves
+        # A factorising backend: each solve factorises, or solves on the
+        # trailing factorisation of its matrix (trailing_ldl.TrailingRounds,
+        # worth it where the bend stencils' two-ring makes a factorisation dear).
+        assert 1 <= stats.factorisations <= stats.solves
         several += stats.solves > 1
     assert several > 0
 
