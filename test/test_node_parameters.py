@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: E402,F401  (the test extra installs it: without it these fail, never skip)
 
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor  # noqa: E402
 from rclpy.node import Node  # noqa: E402

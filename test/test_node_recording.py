@@ -8,7 +8,7 @@ import types
 
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: E402,F401  (the test extra installs it: without it these fail, never skip)
 
 from cloth_lod_ros.bag.rosbag import BagError  # noqa: E402
 from cloth_lod_ros.ros import recording as recmod  # noqa: E402
