@@ -75,7 +75,9 @@ def test_flat_still_cloth_never_refines_and_coarsens_to_the_base():
         s = sim.step()
         assert s.refines == 0
     assert sim.mesh.triangle_count == 32           # flat and still: nothing to model
-    np.testing.assert_array_equal(sim.velocities, 0.0)
+    # Still up to rounding: the bending force -Q x of a flat sheet is zero only up
+    # to the round-off of summing its stencils (~1e-16 of |x| per step).
+    np.testing.assert_allclose(sim.velocities, 0.0, atol=1e-12)
 
 
 def test_free_fall_with_lod_falls_at_g_and_stays_flat():
