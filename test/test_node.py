@@ -471,10 +471,7 @@ def test_a_failing_step_stops_the_simulation_not_the_node(observer, tmp_path):
     scene = tmp_path / "heavy.yaml"
     scene.write_text(SCENE.replace("simulation: {time_step: 0.02, duration: 100.0}",
                                    "simulation: {time_step: 0.02, duration: 100.0, "
-                                   "gravity: [0, 0, -1.0e12]}")
-                     # Self-collision off: its broad phase does not yet bound its cell
-                     # count on unphysical motion, and hangs there (issue 31, open).
-                     + "self_collision: {enabled: false}\n")
+                                   "gravity: [0, 0, -1.0e12]}"))
     node = Running(observer, scene)
     try:
         # Unphysical motion (ERROR) comes first; then a step fails outright.
@@ -496,10 +493,7 @@ def test_auto_reset_resets_a_stopped_simulation_by_itself(observer, tmp_path):
     scene = tmp_path / "heavy.yaml"
     scene.write_text(SCENE.replace("simulation: {time_step: 0.02, duration: 100.0}",
                                    "simulation: {time_step: 0.02, duration: 100.0, "
-                                   "gravity: [0, 0, -1.0e12]}")
-                     # Self-collision off: its broad phase does not yet bound its cell
-                     # count on unphysical motion, and hangs there (issue 31, open).
-                     + "self_collision: {enabled: false}\n")
+                                   "gravity: [0, 0, -1.0e12]}"))
     node = Running(observer, scene, "auto_reset:=0.5")
     try:
         assert node.spin_until(lambda: level(node) == 2, 15.0)

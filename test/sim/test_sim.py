@@ -58,8 +58,11 @@ def test_momentum_is_conserved_without_pins_gravity_or_drag(method, bound):
     """Internal forces and their Jacobians have zero column sums, so Σ m Δv equals
     the sum of the linear-solve residual: exact for LU, within tolerance for PCG."""
     cfg = scene(level=3, gravity=(0, 0, 0), stretch_damping=0.05, bend_damping=0.2)
+    # Self-collision off: the crumpled start brings layers together, and the
+    # self-contact handling does not conserve momentum (see the next test).
     sim = ClothSim(scene_from_dict({**scene_to_dict(cfg),
-                                    "solver": {"method": method, "tolerance": 1e-10}}))
+                                    "solver": {"method": method, "tolerance": 1e-10},
+                                    "self_collision": {"enabled": False}}))
     rng = np.random.default_rng(0)
     sim.state.positions += rng.normal(scale=0.02, size=sim.positions.shape)
     sim.state.velocities[:] = rng.normal(scale=0.5, size=sim.positions.shape)
@@ -76,6 +79,27 @@ def test_momentum_is_conserved_without_pins_gravity_or_drag(method, bound):
                                atol=bound)
     # Internal dissipation only: the relative motion loses energy.
     assert sim.energy()["kinetic"] < ke0
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
+    "self-contact is not momentum-conserving: the post-solve removal of normal "
+    "velocity and the stopped zone act on one side of a pair (measured: "
+    "|delta p| 0.009 kg m/s of |p0| 0.014 in 40 steps); issue 31, open"))
+def test_self_contact_conserves_momentum():
+    """Contact between two layers of one cloth is internal: equal and opposite
+    impulses, so the total momentum of a free cloth stays what it was."""
+    cfg = scene(level=3, gravity=(0, 0, 0), stretch_damping=0.05, bend_damping=0.2)
+    sim = ClothSim(scene_from_dict({**scene_to_dict(cfg),
+                                    "solver": {"method": "direct", "tolerance": 1e-10},
+                                    "self_collision": {"enabled": True}}))
+    rng = np.random.default_rng(0)
+    sim.state.positions += rng.normal(scale=0.02, size=sim.positions.shape)
+    sim.state.velocities[:] = rng.normal(scale=0.5, size=sim.positions.shape)
+    p0 = (sim.masses[:, None] * sim.velocities).sum(axis=0)
+    for _ in range(40):
+        sim.step()
+    p1 = (sim.masses[:, None] * sim.velocities).sum(axis=0)
+    np.testing.assert_allclose(p1, p0, rtol=0, atol=1e-9 * sim.masses.sum())
 
 
 def test_hung_cloth_settles_with_pins_exactly_on_target():

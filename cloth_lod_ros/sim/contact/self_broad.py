@@ -196,6 +196,24 @@ class BroadPhase:
 #: Up to this many candidate pairs, :func:`box_pairs` tests them all directly.
 _ALL_PAIRS = 1 << 15
 
+#: A box covering more grid cells than this is not entered cell by cell.  On a
+#: cloth's mesh the cell is about a triangle's size and boxes differ by the
+#: levels of detail (a factor 2 in extent per two levels), so a box 16 times
+#: the median is still hashed (16 x 16 x 2 = 512 cells); only motion far
+#: beyond any physical step (a step that will be refused) reaches the limit,
+#: whose cell count would otherwise grow without bound.
+_MAX_BOX_CELLS = 4096
+
+
+def _oversized(lo: np.ndarray, hi: np.ndarray, cell: float) -> np.ndarray:
+    """``(k,)`` whether each box ``lo``/``hi`` ``(k, 3)`` (m) covers more than
+    :data:`_MAX_BOX_CELLS` cells of side ``cell`` (m), or is not finite.  The
+    count is taken in floating point: an integer one of huge boxes wraps."""
+    count = np.ones(len(lo))
+    for d in range(3):
+        count *= np.floor(hi[:, d] / cell) - np.floor(lo[:, d] / cell) + 1.0
+    return ~(count <= _MAX_BOX_CELLS)               # (NaN counts are oversized)
+
 
 def edges_of(triangles: np.ndarray) -> np.ndarray:
     """Unique edges ``(e, 2)`` (sorted vertex pairs) of triangles ``(t, 3)``."""
@@ -305,6 +323,11 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
     if not len(lo):
         return np.zeros(0, dtype=bool)
     cell = 1.5 * max(_median(_extent(lo, hi)), 1e-9)
+    if _oversized(lo, hi, cell).any():
+        # A box too large to enter cell by cell may reach any other: every box
+        # is flagged and the pair search (a sweep, bounded by the pairs it
+        # finds) decides.  Only motion no step keeps gets here.
+        return np.ones(len(lo), dtype=bool)
     origin, top = _corner(lo, False), _corner(hi, True)
     dims = np.floor((top - origin) / cell).astype(np.int64) + 1
     far = 2.0 * (np.sqrt(3.0) * cell + 2.0 * pad)
@@ -341,6 +364,25 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
     return out
 
 
+def _every_pair(lo_a, hi_a, lo_b, hi_b, same: bool):
+    """:func:`box_pairs` by testing every pair, in blocks of rows of at most
+    :data:`_ALL_PAIRS` pairs (the memory stays bounded)."""
+    rows = max(1, _ALL_PAIRS // max(len(lo_b), 1))
+    found_a, found_b = [], []
+    for first in range(0, len(lo_a), rows):
+        a = slice(first, first + rows)
+        overlap = np.ones((len(lo_a[a]), len(lo_b)), dtype=bool)
+        for d in range(3):
+            overlap &= lo_a[a, d, None] <= hi_b[None, :, d]
+            overlap &= lo_b[None, :, d] <= hi_a[a, d, None]
+        if same:
+            overlap = np.triu(overlap, 1 + first)
+        ia, ib = np.nonzero(overlap)                  # row-major: by ia, then ib
+        found_a.append(ia.astype(np.int64) + first)
+        found_b.append(ib.astype(np.int64))
+    return np.concatenate(found_a), np.concatenate(found_b)
+
+
 def box_pairs(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray | None = None,
               hi_b: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Index pairs ``(ia, ib)`` of overlapping boxes, each pair once, sorted
@@ -364,18 +406,15 @@ def box_pairs(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray | None = None
     if len(lo_a) * len(lo_b) <= _ALL_PAIRS:
         # Few boxes (a small layered region): every pair at once costs a
         # dozen numpy calls, the hash over a hundred.
-        overlap = np.ones((len(lo_a), len(lo_b)), dtype=bool)
-        for d in range(3):
-            overlap &= lo_a[:, d, None] <= hi_b[None, :, d]
-            overlap &= lo_b[None, :, d] <= hi_a[:, d, None]
-        if same:
-            overlap = np.triu(overlap, 1)
-        ia, ib = np.nonzero(overlap)                  # row-major: by ia, then ib
-        return ia.astype(np.int64), ib.astype(np.int64)
+        return _every_pair(lo_a, hi_a, lo_b, hi_b, same)
     # Cell: the median extent of the larger set's boxes (the triangles, edges),
     # so a typical box covers a few cells and a cell holds a few boxes.
     ext = _extent(lo_a, hi_a) if len(lo_a) >= len(lo_b) else _extent(lo_b, hi_b)
     cell = max(_median(ext), 1e-9)
+    if _oversized(lo_a, hi_a, cell).any() or _oversized(lo_b, hi_b, cell).any():
+        # Boxes too large to hash (motion no step keeps): pair by pair, in
+        # blocks of rows, costing the product of the counts and no more.
+        return _every_pair(lo_a, hi_a, lo_b, hi_b, same)
     origin = np.minimum(_corner(lo_a, False), _corner(lo_b, False))
     top = np.maximum(_corner(hi_a, True), _corner(hi_b, True))
     dims = np.floor((top - origin) / cell).astype(np.int64) + 1

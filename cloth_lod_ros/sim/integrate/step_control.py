@@ -85,6 +85,12 @@ class TimeStepper:
     """
 
     max_strain_growth = 0.1     # largest |w| increase of a triangle in one step
+    # Largest |w| increase in one step for which a step kept at the smallest
+    # size still gets the self-collision search: beyond it triangles more than
+    # doubled in one step (no fabric does; the node reports ERROR long before),
+    # crossings mean nothing, and the boxes of such motion overlap pairwise, so
+    # the search would cost the square of the triangle count.
+    torn_strain_growth = 1.0
     max_substep_depth = 3       # fixed step: at most 2**3 = 8 steps per frame
     growth_limits = (0.2, 2.0)  # bounds of the step-size factor after a step
     safety = 0.9
@@ -106,6 +112,7 @@ class TimeStepper:
         self._crossing = False
         self.configure(simulation)
         self._next_step: float | None = None
+        self._smallest = 0.0
 
     def configure(self, simulation) -> None:
         """Take the scheme and step-size settings from a ``simulation`` section."""
@@ -131,6 +138,7 @@ class TimeStepper:
         smallest = (min(self.simulation.min_time_step, frame) if adaptive
                     else frame / 2 ** self.max_substep_depth)
         h = min(self._next_step or frame, frame) if adaptive else frame
+        self._smallest = smallest
         steps = FrameSteps()
         total = SolveReport.empty()
         contacts = None
@@ -209,13 +217,16 @@ class TimeStepper:
     def _proposal(self, h: float, error: float) -> float:
         return max(h * self._factor(error), self.simulation.min_time_step)
 
-    def _acceptable(self, elements: Elements, start: ClothState, end: ClothState) -> bool:
-        """Finite, and no triangle's stretch grew by more than ``max_strain_growth``."""
+    def _acceptable(self, elements: Elements, start: ClothState, end: ClothState,
+                    limit: float | None = None) -> bool:
+        """Finite, and no triangle's stretch grew by more than ``limit``
+        (:attr:`max_strain_growth` when None)."""
         if not (np.all(np.isfinite(end.positions)) and np.all(np.isfinite(end.velocities))):
             return False
         growth = (stretch_lengths(elements, end.positions)
                   - stretch_lengths(elements, start.positions))
-        return not len(growth) or float(growth.max()) <= self.max_strain_growth
+        limit = self.max_strain_growth if limit is None else limit
+        return not len(growth) or float(growth.max()) <= limit
 
     def _attempt(self, elements: Elements, masses: np.ndarray, state: ClothState,
                  start_targets: np.ndarray, held: tuple[np.ndarray, np.ndarray], h: float,
@@ -253,6 +264,18 @@ class TimeStepper:
             if self.obstacles:
                 missed = penetrations(at_end, state.positions, result.positions,
                                       thickness, exclude=indices, h=h)
+            if sc is not None and not self._acceptable(
+                    elements, state, ClothState(result.positions, result.velocities,
+                                                state.time + h),
+                    self.max_strain_growth if h > self._smallest * (1.0 + 1e-9)
+                    else self.torn_strain_growth):
+                # A step the controller refuses anyway (not finite, or stretched
+                # past its limit) and retries shorter, or one torn at the
+                # smallest step: no crossing search over motion that may span
+                # kilometres.  (A step kept at the smallest size within the tear
+                # limit is searched, and its crossing zone stopped.)
+                self._crossing = False
+                break
             if sc is not None:
                 crossed = sc.crossings(state.positions, result.positions)
                 self._crossing = bool(len(crossed))

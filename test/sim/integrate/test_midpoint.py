@@ -167,5 +167,7 @@ def test_at_the_nodes_fixed_step_the_undamped_swing_blows_up():
     stable = dissipation.energy_loss(2, "sdirk2", 4.0, 1 / 60, 0.0, rest)
     assert stable["end"] == pytest.approx(4.0) and stable["lost"] > 0.0
     study = dissipation.energy_loss(2, "midpoint", 4.0, 1 / 60, 0.0, rest)
-    gain = study["energy"].max() - study["energy"][0]
-    assert gain > 10.0 * (stable["energy"][0] - stable["energy"][-1])
+    # An undamped conservative system keeps its energy; the midpoint run more than
+    # doubles it within 4 s (x3.2 measured), while sdirk2 ends below where it began.
+    assert study["energy"].max() > 2.0 * study["energy"][0]
+    assert stable["energy"][-1] < stable["energy"][0]
