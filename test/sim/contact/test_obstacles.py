@@ -195,12 +195,18 @@ def _gradient_well_defined(ob, x, margin=1e-3):
         q_r, q_a = rad - ob.radius, np.abs(local[:, 2]) - ob.half_height
         inside_ok = (np.abs(q_r - q_a) > margin) & (rad > margin) & (
             np.abs(local[:, 2]) > margin)
-        return (np.abs(phi) > margin) & ((phi > 0) | inside_ok)
+        # Outside, φ is C¹ but not C² where the nearest point moves from a face
+        # onto the rim (q_r or q_a = 0): a central difference errs by ~ε/|q| there.
+        outside_ok = (np.abs(q_r) > margin) & (np.abs(q_a) > margin)
+        return (np.abs(phi) > margin) & (((phi > 0) & outside_ok) | ((phi < 0) & inside_ok))
     phi, _ = ref_box(ob, x)
     local = (x - ob.centre) @ Rotation.from_quat(ob.orientation).as_matrix()
     q = np.sort(np.abs(local) - ob.half_extents, axis=1)
     inside_ok = (q[:, 2] - q[:, 1] > margin) & (np.abs(local) > margin).all(axis=1)
-    return (np.abs(phi) > margin) & ((phi > 0) | inside_ok)
+    # Outside, φ is C¹ but not C² where the nearest point moves from a face onto
+    # an edge (a coordinate at its half extent): a central difference errs there.
+    outside_ok = (np.abs(q) > margin).all(axis=1)
+    return (np.abs(phi) > margin) & (((phi > 0) & outside_ok) | ((phi < 0) & inside_ok))
 
 
 @EXAMPLES

@@ -60,7 +60,10 @@ def _checked_recheck(monkeypatch):
 @pytest.mark.parametrize("scene, overrides, steps", [
     ("hang_two_corners", ["cloth.level=5"], 120),
     ("grasp_lift", ["cloth.level=5"], 80),        # grasp detail, table contact
-    ("drop_on_sphere", ["cloth.level=5"], 60),    # new particles lifted out of the sphere
+    # New particles lifted out of the sphere: the landing refines to ~1,000
+    # triangles by step 20.  (Later the draped corners fold and self-collision's
+    # re-solves cost 4-7 s per frame, issue 31: not this test's subject.)
+    ("drop_on_sphere", ["cloth.level=5"], 24),
 ])
 def test_pool_rechecks_refine_as_decide(monkeypatch, scene, overrides, steps):
     seen = _checked_recheck(monkeypatch)
@@ -74,7 +77,7 @@ def test_pool_rechecks_refine_as_decide(monkeypatch, scene, overrides, steps):
 @pytest.mark.parametrize("scene, overrides, steps", [
     ("hang_two_corners", ["cloth.level=5"], 100),
     ("grasp_lift", ["cloth.level=5"], 80),
-    ("drop_on_sphere", ["cloth.level=5"], 50),
+    ("drop_on_sphere", ["cloth.level=5"], 24),   # (as above)
 ])
 def test_runs_with_pool_rounds_equal_the_compact_path(compiled, scene, overrides, steps):
     """Bit for bit; with the kernels off the pool re-check declines (None) and
