@@ -120,6 +120,10 @@ class ImplicitStageSolver:
     #: Most solves of one contact solve (``contact.friction_rounds``): the first,
     #: the release re-solve and the rounds in which new contacts start to slip.
     friction_rounds = 6
+    #: The friction rounds go on while a sliding contact's Coulomb impulse
+    #: (μ times its normal load in the last solve) changes by more than this
+    #: fraction of the largest one.
+    friction_tolerance = 1e-3
     #: Reactions passed to other layers (:mod:`~cloth_lod_ros.sim.contact.layer_reactions`)
     #: that would change no particle's velocity by more than this (m/s) are
     #: added directly (a layer lying on a table that holds it: nothing moves);
@@ -516,8 +520,22 @@ class ImplicitStageSolver:
                     push_out = push_out - second.normal_speed()
                 correction = masses[second.indices] * np.maximum(push_out, 0.0)
                 limit[doubled] += second.friction * np.maximum(loads[:, 1] - correction, 0.0)
+            # A sliding contact's friction is μ times its normal load *while it
+            # slides*: the load of this solve, in which it slid, not that of
+            # the solve that first held it.  Holding a contact at an edge or a
+            # corner (normal not across its velocity) stops the cloth's
+            # momentum partly along the normal, an impulse of order m v per
+            # step: taken as the load, friction grew as 1/h and the finer the
+            # step the later `table_drape` slid off (issue 31).
+            refreshed = False
+            if slip.any():
+                before = np.linalg.norm(friction_impulse[slip], axis=1)
+                unit = friction_impulse[slip] / np.maximum(before, 1e-300)[:, None]
+                friction_impulse[slip] = limit[slip, None] * unit
+                refreshed = bool(np.max(np.abs(limit[slip] - before))
+                                 > self.friction_tolerance * max(float(np.max(limit)), 1e-300))
             new_slip = (friction > 0.0) & (magnitude > limit) & ~slip
-            if not new_slip.any():
+            if not new_slip.any() and not refreshed:
                 break
             slip |= new_slip
             friction_impulse[new_slip] = (limit[new_slip] / magnitude[new_slip])[:, None] \
