@@ -436,6 +436,9 @@ class ImplicitStageSolver:
             return self._solve(matrix, rhs, pinned), contacts, released
         slip = np.zeros(len(contacts), dtype=bool)
         friction_impulse = np.zeros((len(contacts), 3))
+        # The tangential impulse that held each sliding contact when it began
+        # to slip: what stops its sliding.  Friction never exceeds it.
+        stopping = np.zeros(len(contacts))
         rounds = self.friction_rounds     # a slip front moves one row of contacts per round
         for attempt in range(rounds):
             normals = contacts.normals
@@ -498,6 +501,7 @@ class ImplicitStageSolver:
                                                     pulling_second)
                 slip = slip[keep]
                 friction_impulse = friction_impulse[keep]
+                stopping = stopping[keep]
                 if not len(contacts):
                     result = self._solve(matrix, rhs, pinned)
                     iterations += result.iterations
@@ -539,13 +543,17 @@ class ImplicitStageSolver:
             if sliding_rows.any():
                 before = np.linalg.norm(friction_impulse[sliding_rows], axis=1)
                 unit = friction_impulse[sliding_rows] / np.maximum(before, 1e-300)[:, None]
-                friction_impulse[sliding_rows] = limit[sliding_rows, None] * unit
-                refreshed = bool(np.max(np.abs(limit[sliding_rows] - before))
+                # Coulomb: at most μ times the load, and never more than the
+                # impulse that held the contact (more would reverse its sliding).
+                after = np.minimum(limit[sliding_rows], stopping[sliding_rows])
+                friction_impulse[sliding_rows] = after[:, None] * unit
+                refreshed = bool(np.max(np.abs(after - before))
                                  > self.friction_tolerance * max(float(np.max(limit)), 1e-300))
             new_slip = (friction > 0.0) & (magnitude > limit) & ~slip
             if not new_slip.any() and not refreshed:
                 break
             slip |= new_slip
+            stopping[new_slip] = magnitude[new_slip]
             friction_impulse[new_slip] = (limit[new_slip] / magnitude[new_slip])[:, None] \
                 * tangential[new_slip]
         result.iterations = iterations
