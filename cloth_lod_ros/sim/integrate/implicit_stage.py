@@ -120,6 +120,10 @@ class ImplicitStageSolver:
     #: Most solves of one contact solve (``contact.friction_rounds``): the first,
     #: the release re-solve and the rounds in which new contacts start to slip.
     friction_rounds = 6
+    #: The friction rounds go on while a sliding contact's Coulomb impulse
+    #: (μ times its normal load in the last solve) changes by more than this
+    #: fraction of the largest one.
+    friction_tolerance = 1e-3
     #: Reactions passed to other layers (:mod:`~cloth_lod_ros.sim.contact.layer_reactions`)
     #: that would change no particle's velocity by more than this (m/s) are
     #: added directly (a layer lying on a table that holds it: nothing moves);
@@ -410,7 +414,9 @@ class ImplicitStageSolver:
            system is solved again; repeated (at most ``friction_rounds``
            solves in all, ``contact.friction_rounds``) while new contacts start
            to slip, because when one row lets go the next row
-           takes its load.  Friction is inside the implicit solve,
+           takes its load; a sliding contact's impulse is re-formed each
+           round from its normal load in the last solve (in which it slid),
+           and the rounds go on while those change.  Friction is inside the implicit solve,
            so the rest of the cloth responds to it in the same step.
         3. Contacts with another layer of the cloth (``contacts.partners``):
            the other layer's particles take the opposite of what each contact
@@ -430,6 +436,9 @@ class ImplicitStageSolver:
             return self._solve(matrix, rhs, pinned), contacts, released
         slip = np.zeros(len(contacts), dtype=bool)
         friction_impulse = np.zeros((len(contacts), 3))
+        # The tangential impulse that held each sliding contact when it began
+        # to slip: what stops its sliding.  Friction never exceeds it.
+        stopping = np.zeros(len(contacts))
         rounds = self.friction_rounds     # a slip front moves one row of contacts per round
         for attempt in range(rounds):
             normals = contacts.normals
@@ -492,6 +501,7 @@ class ImplicitStageSolver:
                                                     pulling_second)
                 slip = slip[keep]
                 friction_impulse = friction_impulse[keep]
+                stopping = stopping[keep]
                 if not len(contacts):
                     result = self._solve(matrix, rhs, pinned)
                     iterations += result.iterations
@@ -516,10 +526,34 @@ class ImplicitStageSolver:
                     push_out = push_out - second.normal_speed()
                 correction = masses[second.indices] * np.maximum(push_out, 0.0)
                 limit[doubled] += second.friction * np.maximum(loads[:, 1] - correction, 0.0)
+            # A sliding contact's friction is μ times its normal load *while it
+            # slides*: the load of this solve, in which it slid, not that of
+            # the solve that first held it.  Holding a contact at an edge or a
+            # corner (normal not across its velocity) stops the cloth's
+            # momentum partly along the normal, an impulse of order m v per
+            # step: taken as the load, friction grew as 1/h and the finer the
+            # step the later `table_drape` slid off (issue 31).  Re-solved
+            # while these impulses still change (``friction_tolerance``).
+            refreshed = False
+            # Contacts with another layer keep the load of the holding solve:
+            # theirs is settled only when the other layer takes its reaction
+            # (step 3, after these rounds); refreshed here, a patch sliding
+            # on a sheet lost 7 % of its friction (test_layer_friction).
+            sliding_rows = slip & np.all(contacts.partner_arrays()[1] == 0.0, axis=1)
+            if sliding_rows.any():
+                before = np.linalg.norm(friction_impulse[sliding_rows], axis=1)
+                unit = friction_impulse[sliding_rows] / np.maximum(before, 1e-300)[:, None]
+                # Coulomb: at most μ times the load, and never more than the
+                # impulse that held the contact (more would reverse its sliding).
+                after = np.minimum(limit[sliding_rows], stopping[sliding_rows])
+                friction_impulse[sliding_rows] = after[:, None] * unit
+                refreshed = bool(np.max(np.abs(after - before))
+                                 > self.friction_tolerance * max(float(np.max(limit)), 1e-300))
             new_slip = (friction > 0.0) & (magnitude > limit) & ~slip
-            if not new_slip.any():
+            if not new_slip.any() and not refreshed:
                 break
             slip |= new_slip
+            stopping[new_slip] = magnitude[new_slip]
             friction_impulse[new_slip] = (limit[new_slip] / magnitude[new_slip])[:, None] \
                 * tangential[new_slip]
         result.iterations = iterations
