@@ -99,7 +99,10 @@ def test_every_patch_particle_lands_exactly_on_its_moving_target(lod):
     waypoints = [[0.0, 0.0, 1.0, 1.0], [0.5, 0.2, 1.1, 1.3], [1.0, -0.1, 0.9, 1.1]]
     pins = [{"name": "hand", "uv": [0.0, 1.0], "radius": 0.1, "waypoints": waypoints},
             {"name": "still", "uv": [1.0, 1.0], "radius": RADIUS}]
-    sim = ClothSim(pinned_scene(level=5, lod=lod, pins=pins))
+    # Self-collision off: this is about the held particles.  Yanked at step 30, the
+    # sheet folds and self-collision's re-solves made the run 110-135 s (issue 31).
+    sim = ClothSim(pinned_scene(level=5, lod=lod, pins=pins,
+                                self_collision={"enabled": False}))
     hand, still = sim.pin("hand"), sim.pin("still")
     shape = {p.name: sim.positions[p.vertices] - sim.positions[p.vertex] for p in sim.pins}
     for step in range(50):
