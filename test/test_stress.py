@@ -33,32 +33,16 @@ KNOWN = {("fold_in_half", False): "the scene's grasp path strains the cloth to 0
          # measured; in none do two triangles cross at any step):
          ("table_drape", True): "a particle bounces off the table at 1.15x its landing "
                                 "speed at 0.30 s (issue 31, open)",
-         ("table_drape", False): "a particle bounces off the table at 1.23x its landing "
-                                 "speed at 0.43 s (issue 31, open)",
-         ("bar_drop", True): "layers cross in 67 of 90 steps (1,122 stopped zones, 78 s "
-                             "of self-collision in a 1.5 s run): self-collision with LOD on "
-                             "(issue 31, open)",
+         ("bar_drop", True): "not at rest at 1.2 s: 5.1 cm/s (issue 31, open)",
          ("bar_drop", False): "not at rest at 1.2 s: 26.8 cm/s, the cloth still sliding on "
                               "the bar (issue 31, open)",
          ("slot_drop", True): "not at rest at 1.2 s: 4.4 cm/s (issue 31, open)",
          ("slot_drop", False): "not at rest at 1.2 s: 5.9 cm/s (issue 31, open)",
-         ("grasps_cross", True): "layers cross in 31 of 96 steps, 7 stopped zones left "
-                                 "unresolved: self-collision with LOD on (issue 31, open)",
-         ("grasps_cross", False): "a particle leaves an obstacle at 1.69x its landing "
-                                  "speed at 1.58 s with the squared-Hessian bending "
-                                  "(issue 31, open)",
+         ("grasps_cross", True): "energy 0.98 J > its budget 0.76 J at 1.15 s; a particle "
+                                 "leaves an obstacle at 1.57x its landing speed at 0.65 s "
+                                 "(no layer crosses since friction is capped; issue 31, open)",
          ("corner_pull", True): "a particle bounces off an obstacle at 1.25x its landing "
-                                "speed at 0.70 s (issue 31, open)",
-         ("corner_pull", False): "a particle bounces off an obstacle at 1.47x its landing "
-                                 "speed at 0.75 s (issue 31, open)"}
-
-
-#: Known failures in which layers cross: the crossing is the failure measured.
-CROSSING = {("bar_drop", True), ("grasps_cross", True)}
-#: Known failures too slow to confirm at every run (seconds measured with a second
-#: test run beside it);
-#: ``cloth-lod stress --quick --cases NAME --lod on`` measures them.
-SLOW = {("bar_drop", True): 390}
+                                "speed at 0.70 s (issue 31, open)"}
 
 
 class KnownFailure(Exception):
@@ -70,10 +54,6 @@ class KnownFailure(Exception):
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_case_stays_finite_bounded_and_conserving(case, lod, request):
     known = (case.name, lod) in KNOWN
-    if (case.name, lod) in SLOW:
-        pytest.skip(f"known failure, {SLOW[case.name, lod]} s to confirm (cloth-lod stress "
-                    f"--quick --cases {case.name} --lod on): "
-                    f"{KNOWN[case.name, lod]}")
     if known:
         # strict: the day the scene's path is fixed, this says so
         request.applymarker(pytest.mark.xfail(reason=KNOWN[case.name, lod], strict=True,
@@ -81,9 +61,6 @@ def test_case_stays_finite_bounded_and_conserving(case, lod, request):
     result = run_case(case, lod, quick=True)
     bounds = case.bounds
     if known:
-        if (case.name, lod) in CROSSING:
-            assert result.crossed_steps > 0
-            raise KnownFailure(f"layers crossed in {result.crossed_steps} steps")
         # The layers hold even where another bound does not yet.
         assert result.crossed_steps == 0 and not any(f.startswith("layers")
                                                      for f in result.failures)
@@ -347,9 +324,6 @@ def test_a_fast_impact_stays_physical_with_the_step_size_control(control, integr
         assert strain > 0.3 and energy > 5 * initial
 
 
-@pytest.mark.xfail(strict=True, reason="measured: from 0.083 s 9, then 24 pairs of triangles "
-                   "cross; the fail-safe stops zones of up to 732 particles per frame, and the "
-                   "strain reaches 0.79 by 0.133 s (issue 31, open)")
 def test_a_fast_impact_keeps_the_layers_apart_with_self_collision():
     """The impact above with self-collision on (the default, auto): the free
     corners whip round the sphere at 11-13 m/s and fold over; no two
