@@ -205,6 +205,12 @@ _ALL_PAIRS = 1 << 15
 _MAX_BOX_CELLS = 4096
 
 
+#: Directions along which :func:`layered_boxes` measures the spread of a
+#: cell's normals (:data:`~cloth_lod_ros.sim.contact.self_broad_kernels.SPREAD_DIRECTIONS`).
+SPREAD_DIRECTIONS = _sk.SPREAD_DIRECTIONS
+_SPREAD = _sk.SPREAD
+
+
 def _oversized(lo: np.ndarray, hi: np.ndarray, cell: float) -> np.ndarray:
     """``(k,)`` whether each box ``lo``/``hi`` ``(k, 3)`` (m) covers more than
     :data:`_MAX_BOX_CELLS` cells of side ``cell`` (m), or is not finite.  The
@@ -310,9 +316,22 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
       hence (the cloth compressed to no less than half its rest size) within
       S in the material; or
     * its triangles' unit ``normals`` ``(k, 3)`` do not all lie within 90° of
-      their mean direction.  The two sides of a fold face opposite ways, so
-      a cell holding both (as any cell does where they come within the
-      padding of each other) is flagged however tight the fold.
+      their mean direction; or
+    * two of its normals are more than 90° apart as seen along one of the 13
+      directions of :data:`SPREAD_DIRECTIONS`: their projections on it span
+      more than √2 = |n₁ − n₂| at 90°.  Those directions cover the sphere
+      to 27.6°, so two normals more than 106° apart always flag their cell,
+      and two within 90° never do.
+
+    The two sides of a fold face opposite ways where they come within the
+    padding of each other, so a cell holding both is flagged however tight
+    the fold.  The mean alone is not enough: a pleat standing up from a
+    sheet (its walls facing ±y and both leaning a little towards the sheet's
+    +z) has every normal within 90° of the cell's mean, and its walls closed
+    on each other unseen (``drop_on_sphere`` at level 5, issue 31: two
+    particles 7 mm apart, 2 × 6.25 cm apart in the cloth, reached 0.08 mm
+    in two steps, after which every step needed re-solves, halvings and a
+    stopped zone).
 
     A cloth without folds flags nothing and pays this one hash; with them,
     only the flagged boxes go on to the pair search.  The per-cell maxima,
@@ -359,6 +378,15 @@ def layered_boxes(lo: np.ndarray, hi: np.ndarray, uv_lo: np.ndarray, uv_hi: np.n
         n = np.ascontiguousarray(normals[:, d]).take(box)
         cosine += n * np.bincount(key, n, cells).take(key)
     layered[key[cosine < 0.0]] = True
+    n0, n1, n2 = (np.ascontiguousarray(normals[:, d]) for d in range(3))
+    for d0, d1, d2 in SPREAD_DIRECTIONS:
+        # (The products and sums in the kernel's order: the same flags.)
+        along = (n0 * d0 + n1 * d1 + n2 * d2).take(box)
+        top = np.full(cells, -np.inf)
+        np.maximum.at(top, key, along)
+        bottom = np.full(cells, np.inf)
+        np.minimum.at(bottom, key, along)
+        layered |= top - bottom > _SPREAD
     out = np.zeros(len(lo), dtype=bool)
     out[box[layered.take(key)]] = True
     return out

@@ -34,6 +34,23 @@ from ..runtime.compiled import _jit
 __all__ = ["outside", "broad_boxes", "layered_cells", "overlap_pairs", "may_touch",
            "warm_up"]
 
+
+def _unit(v):
+    return tuple(float(c) / float(np.sqrt(sum(a * a for a in v))) for c in v)
+
+
+#: Directions along which :func:`~cloth_lod_ros.sim.contact.self_broad.layered_boxes`
+#: measures the spread of a cell's normals: the 3 axes, 6 face diagonals and 4
+#: body diagonals of a cube (with their opposites they leave no direction
+#: farther than 27.6° away).
+SPREAD_DIRECTIONS = tuple(_unit(v) for v in (
+    (1, 0, 0), (0, 1, 0), (0, 0, 1),
+    (1, 1, 0), (1, -1, 0), (1, 0, 1), (1, 0, -1), (0, 1, 1), (0, 1, -1),
+    (1, 1, 1), (1, 1, -1), (1, -1, 1), (1, -1, -1)))
+#: A spread above this along a direction: two normals more than 90° apart.
+SPREAD = float(np.sqrt(2.0))
+_DIRECTIONS = np.array(SPREAD_DIRECTIONS)          # (13, 3): a constant to the kernels
+
 #: :func:`broad_boxes` status: flags computed.
 DONE = 0
 #: The grid over the triangle boxes is not dense (the caller hashes them).
@@ -169,8 +186,11 @@ def layered_cells(lo, hi, uv_lo, uv_hi, normals, cell, origin, dims, far, out):
         return np.int64(f)
 
     # Per cell: u, v maxima of the low corners, u, v minima of the high ones,
-    # the normals' sum (one row: one cache line per cell visited).
-    acc = np.empty((cells, 7))
+    # the normals' sum, then the maximum and minimum of the normals along
+    # each spread direction (one row per cell).
+    directions = _DIRECTIONS
+    m_dir = directions.shape[0]
+    acc = np.empty((cells, 7 + 2 * m_dir))
     for c in range(cells):
         acc[c, 0] = -np.inf
         acc[c, 1] = -np.inf
@@ -179,6 +199,10 @@ def layered_cells(lo, hi, uv_lo, uv_hi, normals, cell, origin, dims, far, out):
         acc[c, 4] = 0.0
         acc[c, 5] = 0.0
         acc[c, 6] = 0.0
+        for j in range(m_dir):
+            acc[c, 7 + 2 * j] = -np.inf
+            acc[c, 8 + 2 * j] = np.inf
+    along = np.empty(m_dir)
     # Every (box, cell) entry, by box, kept for the later sweeps; the cell
     # sums as they are found (box by box).
     start = np.zeros(k + 1, np.int64)
@@ -195,6 +219,9 @@ def layered_cells(lo, hi, uv_lo, uv_hi, normals, cell, origin, dims, far, out):
             entry = grown
         u_lo, v_lo, u_hi, v_hi = uv_lo[b, 0], uv_lo[b, 1], uv_hi[b, 0], uv_hi[b, 1]
         n0, n1, n2 = normals[b, 0], normals[b, 1], normals[b, 2]
+        for j in range(m_dir):
+            # (The products and sums in layered_boxes' order: the same flags.)
+            along[j] = n0 * directions[j, 0] + n1 * directions[j, 1] + n2 * directions[j, 2]
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 for m in range(m0, m1 + 1):
@@ -208,11 +235,17 @@ def layered_cells(lo, hi, uv_lo, uv_hi, normals, cell, origin, dims, far, out):
                     acc[c, 4] += n0
                     acc[c, 5] += n1
                     acc[c, 6] += n2
+                    for q in range(m_dir):
+                        acc[c, 7 + 2 * q] = max(acc[c, 7 + 2 * q], along[q])
+                        acc[c, 8 + 2 * q] = min(acc[c, 8 + 2 * q], along[q])
         start[b + 1] = e
     layered = np.empty(cells, np.bool_)
     flagged = False
     for c in range(cells):
         layered[c] = (acc[c, 0] - acc[c, 2] > far) or (acc[c, 1] - acc[c, 3] > far)
+        for j in range(m_dir):
+            if acc[c, 7 + 2 * j] - acc[c, 8 + 2 * j] > SPREAD:
+                layered[c] = True
         flagged |= layered[c]
     for b in range(k):                  # the cosines to the sums
         n0, n1, n2 = normals[b, 0], normals[b, 1], normals[b, 2]

@@ -9,9 +9,10 @@ from cloth_lod_ros.sim import ClothSim
 from cloth_lod_ros.sim.contact import self_contact as self_contact_module
 from cloth_lod_ros.sim.scene.config import (SceneError, load_scene, scene_from_dict, scene_to_dict,
                                             self_collision_on)
-from cloth_lod_ros.sim.contact.self_contact import SelfCollision
+from cloth_lod_ros.sim.contact.self_contact import SelfCollision, SelfCounters
 from cloth_lod_ros.sim.runtime import compiled as runtime_compiled
-from cloth_lod_ros.sim.contact.self_broad import box_pairs, layered_boxes
+from cloth_lod_ros.sim.contact.self_broad import (SPREAD_DIRECTIONS, BroadPhase, box_pairs,
+                                                  layered_boxes)
 from cloth_lod_ros.sim.contact.self_narrow import (ee_crossing, point_triangle, segment_segment,
                                                    vf_crossing)
 from cloth_lod_ros.tools.stress.intersect import intersecting_pairs
@@ -90,9 +91,14 @@ def _layered_by_cells(lo, hi, uv_lo, uv_hi, pad, normals):
         spread = max(uv_lo[ids, d].max() - uv_hi[ids, d].min() for d in (0, 1))
         mean = normals[ids].mean(axis=0)
         cosines = normals[ids] @ mean
+        # Two normals more than 90 degrees apart along a direction: their
+        # projections span more than sqrt(2).
+        along = normals[ids] @ np.array(SPREAD_DIRECTIONS).T
+        widths = along.max(axis=0) - along.min(axis=0)
         margins += [abs(spread - far) / far,
-                    np.abs(cosines).min() / max(np.linalg.norm(mean), 1e-300)]
-        if spread > far or cosines.min() < 0.0:
+                    np.abs(cosines).min() / max(np.linalg.norm(mean), 1e-300),
+                    np.abs(widths - np.sqrt(2.0)).min()]
+        if spread > far or cosines.min() < 0.0 or widths.max() > np.sqrt(2.0):
             out[ids] = True
     return out, min(margins)
 
@@ -146,6 +152,75 @@ def _check_layered_boxes():
             flagged.append(out.any())
     assert len(flagged) >= 14      # at most 2 of 16 trials too close to a threshold
     assert any(flagged) and not all(flagged)
+
+
+def _pleated_sheet(opening: float, rotation: np.ndarray):
+    """A 0.6 m x 0.3 m sheet (2 cm grid, material coordinates u, v) lying in
+    z = 0 with a pleat standing up from it: along u, the cloth from u = 0.2 m
+    rises 10 cm as a wall, comes back down as a second wall and lies flat
+    again from u = 0.4 m.  The walls form an inverted V whose feet are
+    ``opening`` m apart: they face -x and +x, both leaning a little towards
+    the sheet's +z, so every normal lies within 90 degrees of the mean of any
+    cell (the case that hid a closing pleat, issue 31).  ``rotation``
+    ``(3, 3)`` turns the whole sheet.  Returns ``(x, triangles, uv)``."""
+    step, n_u, n_v = 0.02, 31, 16
+    u, v = np.meshgrid(np.arange(n_u) * step, np.arange(n_v) * step, indexing="ij")
+    u, v = u.ravel(), v.ravel()
+    height = 0.1
+    x = np.column_stack([u, v, np.zeros_like(u)])
+    rise = (u > 0.2) & (u <= 0.3)
+    fall = (u > 0.3) & (u < 0.4)
+    x[rise, 0] = 0.2 + (u[rise] - 0.2) / height * 0.5 * opening
+    x[rise, 2] = u[rise] - 0.2
+    x[fall, 0] = 0.2 + 0.5 * opening + (u[fall] - 0.3) / height * 0.5 * opening
+    x[fall, 2] = 0.4 - u[fall]
+    x[u >= 0.4, 0] = u[u >= 0.4] - 0.2 + opening
+    corner = (np.arange(n_u - 1)[:, None] * n_v + np.arange(n_v - 1)[None, :]).ravel()
+    tris = np.concatenate([np.column_stack([corner, corner + n_v, corner + n_v + 1]),
+                           np.column_stack([corner, corner + n_v + 1, corner + 1])])
+    return x @ rotation.T, tris, np.column_stack([u, v])
+
+
+def _random_rotation(rng) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    return q * np.sign(np.diag(r))
+
+
+@pytest.mark.parametrize("compiled", [False, True], ids=["numpy", "compiled"])
+@pytest.mark.parametrize("opening", [0.004, 0.012])
+def test_every_vertex_triangle_pair_within_the_band_is_a_candidate(compiled, opening):
+    """The broad phase (its layered-cell prefilter included) misses no pair
+    that the proximity test would keep: every vertex-triangle pair sharing
+    no particle and closer than twice the thickness, found by brute force
+    over all pairs, is among its candidates.  Standing pleats with feet 4 and
+    12 mm apart, in six orientations: their walls face opposite ways but
+    every normal is within 90 degrees of its cell's mean."""
+    if compiled and not runtime_compiled.available:
+        pytest.skip("numba not installed")
+    previous = runtime_compiled.use(compiled)
+    rng = np.random.default_rng(11)
+    try:
+        for trial in range(6):
+            rotation = np.eye(3) if trial == 0 else _random_rotation(rng)
+            x, tris, uv = _pleated_sheet(opening, rotation)
+            broad = BroadPhase(THICKNESS, SelfCounters())
+            broad.set_topology(tris, uv)
+            c = broad.query(x, x, THICKNESS)
+            found = set(zip(c["verts"].tolist(), map(tuple, np.sort(c["tris"], 1).tolist())))
+            verts = np.repeat(np.arange(len(x)), len(tris))
+            every = np.tile(tris, (len(x), 1))
+            apart = np.all(every != verts[:, None], axis=1)
+            verts, every = verts[apart], every[apart]
+            w = point_triangle(x[verts], x[every[:, 0]], x[every[:, 1]], x[every[:, 2]])
+            gap = np.linalg.norm(x[verts] - np.einsum("kj,kjd->kd", w, x[every]), axis=1)
+            close = gap < 2.0 * THICKNESS
+            assert close.sum() > 20                     # the walls do come close
+            missed = [(p, t) for p, t in zip(verts[close].tolist(),
+                                             map(tuple, np.sort(every[close], 1).tolist()))
+                      if (p, t) not in found]
+            assert not missed, (trial, len(missed), int(close.sum()))
+    finally:
+        runtime_compiled.use(previous)
 
 
 def test_a_vertex_through_a_triangle_is_caught_and_one_passing_beside_it_is_not():
