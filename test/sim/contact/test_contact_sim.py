@@ -71,11 +71,7 @@ def test_friction_holds_below_the_critical_angle_and_slides_above(angle_deg, sli
 
 
 @pytest.mark.parametrize("name,overrides", [
-    # Self-collision off here: this test is about the obstacle.  At level 4 the draped
-    # corners fold by 0.5 s and self-collision's re-solves make the run ~30x slower
-    # (200 s; at the scene's level 6 it finds nothing to do): issue 31, open.
-    ("drop_on_sphere", ["cloth.level=4", "simulation.duration=1.2",
-                        "self_collision.enabled=false"]),
+    ("drop_on_sphere", ["cloth.level=4", "simulation.duration=1.2"]),
     ("drop_on_disc", ["cloth.level=4", "lod.initial_level=4", "simulation.duration=1.2"]),
     ("table_drape", ["cloth.level=4", "simulation.duration=1.2"]),
 ])
