@@ -216,7 +216,8 @@ def _fitted(uv, tri, vertices, G, usable):
     in the order of ``vertices``, each vertex's rows in ascending eigenvalue
     order of its ``G`` (k the largest two-ring + 1, padded with the vertex
     itself, coefficient 0).  The fits are batched over vertices with the
-    same ring size (one LAPACK call per size instead of one per vertex).
+    same ring size (one LAPACK call per size instead of one per vertex; the
+    results are bit for bit those of fitting one vertex at a time).
     """
     n = len(uv)
     rows = tri[:, [0, 1, 2, 1, 2, 0]].ravel()
@@ -229,9 +230,10 @@ def _fitted(uv, tri, vertices, G, usable):
     nbr_all, owner = ring.indices[take], owner[take]        # grouped by owner, CSR order
     size = np.bincount(owner, minlength=len(vertices))
     first = np.concatenate([[0], np.cumsum(size)[:-1]])
-    w, Q = np.linalg.eigh(G)                                 # (f, 3), (f, 3, 3)
+    w, Q = np.linalg.eigh(G)                                 # (f, 3) ascending, (f, 3, 3)
+    # R's rows: the eigenvalues above the cut, the last ``kept`` (ascending order).
     keep = w > 1e-12 * np.maximum(w.max(axis=1), 1e-300)[:, None]
-    R = np.sqrt(np.where(keep, w, 0.0))[:, :, None] * np.swapaxes(Q, 1, 2)   # (f, 3, 3)
+    kept = keep.sum(axis=1)
     width = int(size.max()) + 1
     V = np.repeat(vertices[:, None, None], 3, axis=1).repeat(width, axis=2)  # (f, 3, width)
     C = np.zeros((len(vertices), 3, width))
@@ -244,8 +246,16 @@ def _fitted(uv, tri, vertices, G, usable):
         P = np.concatenate([s, 0.5 * s**2, s[:, :, :1] * s[:, :, 1:]], axis=2)   # (g, m, 5)
         pinv = np.linalg.pinv(P)[:, 2:] / scale**2            # (g, 3, m): H from x_j − x_i
         W = np.concatenate([-pinv.sum(axis=2, keepdims=True), pinv], axis=2)    # over [i, nbrs]
-        C[r, :, :m + 1] = R[r] @ W
         V[r, :, 1:m + 1] = nbrs[:, None, :]
+        # Grouped by k too: R W is a (k, 3) @ (3, m + 1) product whose rounding
+        # depends on k (one row goes to BLAS's gemv), so the stencils are the
+        # same numbers as one vertex at a time (trajectories to the last bit).
+        for k in (1, 2, 3):
+            sel = np.flatnonzero(kept[r] == k)
+            if len(sel):
+                rk = r[sel]
+                R = np.sqrt(w[rk, 3 - k:])[:, :, None] * np.swapaxes(Q[rk][:, :, 3 - k:], 1, 2)
+                C[rk, 3 - k:, :m + 1] = R @ W[sel]          # (g_k, k, m + 1)
     return V[keep], C[keep]
 
 

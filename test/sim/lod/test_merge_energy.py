@@ -212,8 +212,8 @@ def test_no_merge_of_a_long_hanging_run_adds_more_than_its_bound():
     than 1 µJ, the largest +0.96 mJ (t = 0.43 s, almost all stretch).  The
     merges start at t ≈ 0.45 s, when the fall's first swing slows; by 0.8 s
     there are over 100 of them and the misses of issue 32 are all there (22 of
-    133 above their bound, the largest ~200 times it at t ≈ 0.67 s; over 3 s,
-    53 of 527 and the same largest, at 3-4 times the cost)."""
+    133 above their bound, the largest 195 times it at t = 0.667 s; over 3 s,
+    48 of 518 and the same largest, at 3 times the cost)."""
     sim = ClothSim(load_scene("hang_two_corners"))
     assert sim.scene.lod.max_merge_speed == 0.03
     records = record_merges(sim)
