@@ -208,38 +208,55 @@ def bend_stencils(uv: np.ndarray, tri: np.ndarray,
 
 def _fitted(uv, tri, vertices, G, usable):
     """Stencils ``R W`` with ``Rᵀ R = G`` and ``W`` the least-squares Hessian
-    ``(H_11, H_22, H_12)`` of each vertex's two-ring (rest coordinates)."""
+    ``(H_11, H_22, H_12)`` of each vertex's two-ring (rest coordinates).
+
+    ``uv`` ``(n, 2)`` m, ``tri`` ``(t, 3)``, ``vertices`` ``(f,)`` the fitted
+    vertices, ``G`` ``(f, 3, 3)`` their forms (m²), ``usable`` ``(n,)`` bool
+    the vertices a fit may see.  Returns ``(V, C)`` ``(s, k)``: stencil rows
+    in the order of ``vertices``, each vertex's rows in ascending eigenvalue
+    order of its ``G`` (k the largest two-ring + 1, padded with the vertex
+    itself, coefficient 0).  The fits are batched over vertices with the
+    same ring size (one LAPACK call per size instead of one per vertex; the
+    results are bit for bit those of fitting one vertex at a time).
+    """
     n = len(uv)
     rows = tri[:, [0, 1, 2, 1, 2, 0]].ravel()
     cols = tri[:, [1, 2, 0, 0, 1, 2]].ravel()
     adj = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
     adj.data[:] = 1.0
     ring = (adj[vertices] @ adj + adj[vertices]).tocsr()
-    out_v, out_c = [], []
-    for r, i in enumerate(vertices):
-        nbrs = ring.indices[ring.indptr[r]:ring.indptr[r + 1]]
-        nbrs = nbrs[(nbrs != i) & usable[nbrs]]
-        d = uv[nbrs] - uv[i]
-        scale = np.sqrt(np.mean(np.sum(d * d, axis=1)))
+    owner = np.repeat(np.arange(len(vertices)), np.diff(ring.indptr))
+    take = (ring.indices != vertices[owner]) & usable[ring.indices]
+    nbr_all, owner = ring.indices[take], owner[take]        # grouped by owner, CSR order
+    size = np.bincount(owner, minlength=len(vertices))
+    first = np.concatenate([[0], np.cumsum(size)[:-1]])
+    w, Q = np.linalg.eigh(G)                                 # (f, 3) ascending, (f, 3, 3)
+    # R's rows: the eigenvalues above the cut, the last ``kept`` (ascending order).
+    keep = w > 1e-12 * np.maximum(w.max(axis=1), 1e-300)[:, None]
+    kept = keep.sum(axis=1)
+    width = int(size.max()) + 1
+    V = np.repeat(vertices[:, None, None], 3, axis=1).repeat(width, axis=2)  # (f, 3, width)
+    C = np.zeros((len(vertices), 3, width))
+    for m in np.unique(size):
+        r = np.flatnonzero(size == m)
+        nbrs = nbr_all[first[r, None] + np.arange(m)]        # (g, m)
+        d = uv[nbrs] - uv[vertices[r], None, :]              # (g, m, 2)
+        scale = np.sqrt(np.mean(np.sum(d * d, axis=2), axis=1))[:, None, None]
         s = d / scale
-        P = np.column_stack([s[:, 0], s[:, 1], 0.5 * s[:, 0] ** 2, 0.5 * s[:, 1] ** 2,
-                             s[:, 0] * s[:, 1]])
-        pinv = np.linalg.pinv(P)[2:] / scale ** 2            # (3, m): H from x_j − x_i
-        W = np.column_stack([-pinv.sum(axis=1), pinv])       # over [i, nbrs]
-        w, Q = np.linalg.eigh(G[r])
-        keep = w > 1e-12 * max(w.max(), 1e-300)
-        R = (np.sqrt(w[keep])[:, None] * Q[:, keep].T)       # (k, 3), RᵀR = G
-        verts = np.concatenate([[i], nbrs])
-        for row in R @ W:
-            out_v.append(verts)
-            out_c.append(row)
-    width = max(len(v) for v in out_v)
-    V = np.empty((len(out_v), width), dtype=np.int64)
-    C = np.zeros((len(out_v), width))
-    for s, (v, c) in enumerate(zip(out_v, out_c)):
-        V[s, :len(v)], V[s, len(v):] = v, v[0]
-        C[s, :len(c)] = c
-    return V, C
+        P = np.concatenate([s, 0.5 * s**2, s[:, :, :1] * s[:, :, 1:]], axis=2)   # (g, m, 5)
+        pinv = np.linalg.pinv(P)[:, 2:] / scale**2            # (g, 3, m): H from x_j − x_i
+        W = np.concatenate([-pinv.sum(axis=2, keepdims=True), pinv], axis=2)    # over [i, nbrs]
+        V[r, :, 1:m + 1] = nbrs[:, None, :]
+        # Grouped by k too: R W is a (k, 3) @ (3, m + 1) product whose rounding
+        # depends on k (one row goes to BLAS's gemv), so the stencils are the
+        # same numbers as one vertex at a time (trajectories to the last bit).
+        for k in (1, 2, 3):
+            sel = np.flatnonzero(kept[r] == k)
+            if len(sel):
+                rk = r[sel]
+                R = np.sqrt(w[rk, 3 - k:])[:, :, None] * np.swapaxes(Q[rk][:, :, 3 - k:], 1, 2)
+                C[rk, 3 - k:, :m + 1] = R @ W[sel]          # (g_k, k, m + 1)
+    return V[keep], C[keep]
 
 
 def bend_energy(stencils: BendStencils, bend_stiffness: float, x: np.ndarray) -> float:

@@ -1,6 +1,7 @@
 """Contact, friction and grasps in whole simulation steps."""
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -223,7 +224,11 @@ def test_closing_again_holds_the_cloth_where_it_is_unless_a_pose_was_commanded()
 
 
 def test_patch_grasp_holds_several_particles_rigidly_and_turns_them():
-    sim = ClothSim(scene(grasps=[grasp(uv=(0.5, 1.0), width=0.3)], level=4))
+    # Self-collision off: this is about the held patch.  The level-4 sheet hanging
+    # from it folds as it turns, and self-collision's step rejections and re-solves
+    # made the run 60x slower (30 s; issue 31); the held particles are the same.
+    cfg = scene(grasps=[grasp(uv=(0.5, 1.0), width=0.3)], level=4)
+    sim = ClothSim(replace(cfg, self_collision=replace(cfg.self_collision, enabled=False)))
     sim.step()
     g = sim.grasp("hand")
     assert len(g.nodes) >= 3

@@ -35,7 +35,10 @@ def test_reachable_is_the_nearest_point_of_one_ball_and_inside_all():
 
 @pytest.mark.parametrize("target", [(10.0, 1.0, 1.0), (1.0, 10.0, -9.0), (-10.0, 1.0, 1.0)])
 def test_a_grasp_sent_to_the_workspace_edge_stays_within_reach(target):
-    sim = ClothSim(scene_from_dict(SCENE))
+    # Self-collision off: this is about where the grasp goes.  Brought back from
+    # beyond the pin (target2) the sheet folds over itself and self-collision's
+    # re-solves made the last 50 steps ~30 s (issue 31); the grasp's path is the same.
+    sim = ClothSim(scene_from_dict({**SCENE, "self_collision": {"enabled": False}}))
     sim.step()                                     # closes at t = 0
     grasp, pin = sim.grasp("hand"), sim.pins[0]
     sim.set_grasp_target("hand", target)

@@ -122,12 +122,13 @@ def test_lod_run_conserves_mass_and_holds_pins_exactly():
 
 
 def test_settled_drape_stops_changing_topology():
-    """Hysteresis: once the cloth hangs still, splits and merges stop.  (The
-    swing's energy decays as exp(−1.5 t) by air drag; it is quiet after ~7 s.)"""
-    cfg = load_scene("hang_two_corners", ["cloth.level=5", "material.air_drag=1.5"])
+    """Hysteresis: once the cloth hangs still, splits and merges stop.  (Air
+    drag 3 /s: the last split or merge is at 2.6 s, the kinetic energy below
+    1e-5 J from 2.9 s; the last 2 s of 6 s start 1.4 s after the last change.)"""
+    cfg = load_scene("hang_two_corners", ["cloth.level=5", "material.air_drag=3.0"])
     sim = ClothSim(cfg)
     ops = []
-    for _ in range(int(10.0 / sim.time_step)):
+    for _ in range(int(6.0 / sim.time_step)):
         s = sim.step()
         ops.append(s.refines + s.merges)
     ops = np.array(ops)

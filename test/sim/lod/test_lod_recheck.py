@@ -50,9 +50,14 @@ def _checked_decide(monkeypatch):
 
 @pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("scene, overrides, steps", [
-    ("hang_two_corners", ["cloth.level=5"], 120),
-    ("grasp_lift", ["cloth.level=5"], 80),
-    ("table_drape", ["cloth.level=5"], 60),
+    # Steps: past the last re-check that refines, with and without the kernels
+    # (hang_two_corners: the last re-check of 120 steps is at step 37;
+    # grasp_lift: 65 of 80; table_drape: 29 of 60, later ones refine nothing,
+    # and steps 40-60 were three quarters of the run, mostly self-collision's
+    # re-solves as the drape folds over the table's edge, issue 31).
+    ("hang_two_corners", ["cloth.level=5"], 40),
+    ("grasp_lift", ["cloth.level=5"], 68),
+    ("table_drape", ["cloth.level=5"], 32),
     ("fold_in_half", ["cloth.level=5"], 60),
 ])
 def test_rechecks_decide_as_full_checks(monkeypatch, compiled, scene, overrides, steps):

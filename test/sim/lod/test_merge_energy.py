@@ -205,16 +205,20 @@ def test_every_merge_of_a_decision_adds_at_most_the_bound(seed):
 
 @pytest.mark.xfail(strict=True, reason="issue 32: the bend part of merge_energy_change (and of the compiled check, check_kernels) is still the hinge sum, the bend energy is the stencils' (physics.bending)")
 def test_no_merge_of_a_long_hanging_run_adds_more_than_its_bound():
-    """``hang_two_corners`` at level 6, 3 s from the horizontal start: every merge
+    """``hang_two_corners`` at level 6, 0.8 s from the horizontal start: every merge
     adds at most ``½ ρ A v²`` (v = 0.03 m/s: 0.09 µJ for a level-6 diamond, 5.6 µJ
     for a level-1 one) of elastic + kinetic + gravity energy, and keeps mass and
     momentum.  Before the energy test, 143 merges of the first 3 s added more
-    than 1 µJ, the largest +0.96 mJ (t = 0.43 s, almost all stretch)."""
+    than 1 µJ, the largest +0.96 mJ (t = 0.43 s, almost all stretch).  The
+    merges start at t ≈ 0.45 s, when the fall's first swing slows; by 0.8 s
+    there are over 100 of them and the misses of issue 32 are all there (22 of
+    133 above their bound, the largest 195 times it at t = 0.667 s; over 3 s,
+    48 of 518 and the same largest, at 3 times the cost)."""
     sim = ClothSim(load_scene("hang_two_corners"))
     assert sim.scene.lod.max_merge_speed == 0.03
     records = record_merges(sim)
-    stats = sim.run(3.0)
-    assert sum(s.merges for s in stats) == len(records) > 50
+    stats = sim.run(0.8)
+    assert sum(s.merges for s in stats) == len(records) > 100
     ratio = np.array([energy / bound for _, energy, bound, *_ in records])
     assert ratio.max() <= 1.0 + 1e-9, (
         f"{np.sum(ratio > 1)} merges above their bound, the worst {ratio.max():.3g} times it "
