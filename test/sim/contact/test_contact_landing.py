@@ -152,7 +152,7 @@ def test_a_strip_lying_still_at_the_edge_stays_still():
 @pytest.mark.parametrize("case", [
     "rounded edge", "corner",
     pytest.param("rim", marks=pytest.mark.xfail(
-        strict=True, reason="measured 1.01 cm/s at 1 s with the squared-Hessian bending "
+        strict=True, reason="measured 1.25 cm/s at 1 s with the squared-Hessian bending "
         "(the overhang still rings; the hinge sum, 0.7x as stiff, settled; issue 31, open)"))])
 def test_a_strip_landed_over_an_edge_comes_to_rest(case):
     """The issue's rest target: after 1 s every particle is slower than
