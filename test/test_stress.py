@@ -22,13 +22,14 @@ CASE = {c.name: c for c in CASES}
 
 # fold_in_half: the grasps lay the edge down onto contacts that stick, and the scene's
 # converged motion (3 Newton iterations to 1e-4 m) strains 0.24-0.46 too, so the scene's
-# path, not the step, is what exceeds the bound.  The other contact cases that do not hold
-# yet (quick flavours, measured with `cloth-lod stress --quick`; in none do two triangles
-# cross at any step) pass with a tighter time-error tolerance: table_drape and
-# corner_pull LOD on at `simulation.error_tolerance=1e-5` (1.27x and 1.11x at 1e-4),
-# slot_drop at 1e-5, bar_drop at 1e-6 (4.1 and 1.8 cm/s at 1e-4 and 1e-5).  The converged
-# motion holds the bounds; the default step control does not see the error a landing
-# makes (contact particles count as error-free).  Open in issue 31.
+# path, not the step, is what exceeds the bound.  Of the other contact cases that do not
+# hold yet (quick flavours, measured with `cloth-lod stress --quick`; in none do two
+# triangles cross at any step), the four tried pass with a tighter time-error tolerance
+# alone: table_drape and corner_pull LOD on at `simulation.error_tolerance=1e-5` (1.27x and
+# 1.11x at 1e-4), slot_drop LOD off at 1e-5, bar_drop LOD off at 1e-6 (4.1 and 1.8 cm/s
+# at 1e-4 and 1e-5).  There the converged motion holds the bounds; the default step control
+# does not see the error a landing makes (contact particles count as error-free).  Open in
+# issue 31.
 KNOWN = {("fold_in_half", False): "the scene's grasp path strains the cloth to 0.46 (energy "
                                   "1.32 J > budget 0.34 J at 1.83 s); its converged motion "
                                   "strains too (issue 31, open)",
