@@ -226,7 +226,8 @@ def test_closing_again_holds_the_cloth_where_it_is_unless_a_pose_was_commanded()
 def test_patch_grasp_holds_several_particles_rigidly_and_turns_them():
     # Self-collision off: this is about the held patch.  The level-4 sheet hanging
     # from it folds as it turns, and self-collision's step rejections and re-solves
-    # made the run 60x slower (30 s; issue 31); the held particles are the same.
+    # made the run ~30x slower (49 s after the pleat fix; issue 31); the held particles
+    # are the same.
     cfg = scene(grasps=[grasp(uv=(0.5, 1.0), width=0.3)], level=4)
     sim = ClothSim(replace(cfg, self_collision=replace(cfg.self_collision, enabled=False)))
     sim.step()
