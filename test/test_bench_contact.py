@@ -54,14 +54,19 @@ def test_the_reference_itself_is_at_zero_distance_and_its_double_step_is_not(sam
         [d / 3 for d in row["reference_diff_rms_frac"]])
     assert row["cpu_per_sim_s_median"] > 0 and math.isfinite(row["cpu_per_sim_s_median"])
     assert row["reference_time_step"] == pytest.approx(row["frame_period_s"])
+    # The sensitivity run really started elsewhere (by 1 nm), and over the quick
+    # 0.5 s of a lift nothing amplifies that to a measurable fraction of the side.
+    assert row["sensitivity_perturbation_m"] == contact.PERTURB
+    assert all(0.0 < d < 1e-4 for d in row["sensitivity_rms_frac"])
 
 
 def test_references_come_from_the_cache_the_second_time_with_the_same_numbers(same_as_reference):
     _, (first, second), cache = same_as_reference
-    assert len(list(cache.glob("*.json"))) == 2          # the reference and its 2 h_ref run
+    assert len(list(cache.glob("*.json"))) == 3   # the reference, its 2 h_ref and moved runs
     a, b = first["rows"][0], second["rows"][0]
     assert not a["reference_cached"] and b["reference_cached"]
-    for key in ("rms_frac", "max_frac", "reference_diff_rms_frac", "reference_diff_max_frac"):
+    for key in ("rms_frac", "max_frac", "reference_diff_rms_frac", "reference_diff_max_frac",
+                "sensitivity_rms_frac"):
         assert a[key] == b[key]
 
 
@@ -73,6 +78,7 @@ def test_cache_key_follows_the_run_and_the_simulator_sources():
     assert contact._cache_key(spec, "text", "other sources") != key
     assert contact._cache_key(spec, "other scene file", "fp") != key
     assert contact._cache_key(dict(spec, cpu=1, result="x"), "text", "fp") == key
+    assert contact._cache_key(dict(spec, perturb=dict(size=1e-9, seed=1)), "text", "fp") != key
 
 
 def test_report_shows_the_contact_table_with_its_command(same_as_reference):

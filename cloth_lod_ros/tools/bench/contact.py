@@ -18,6 +18,13 @@ For each of :data:`CONTACT_SCENES` (``drop_on_sphere``, ``table_drape``,
   error of the run at ``2 h_ref``, and a bound on the reference's for any
   order >= 1) and, beside it, the second-order (Richardson) estimate, that
   difference / 3.
+* **the scene's sensitivity floor**: the reference again with every
+  particle's start moved by :data:`PERTURB` (1 nm) in a seeded random
+  direction (:mod:`..sensitivity`).  A cloth that buckles into folds over a
+  ball or on a floor picks their number and direction from whatever breaks
+  its symmetry first, rounding included; the distance between the two runs
+  is the scene's own sensitivity, and an error against the reference below
+  it cannot be told from it.
 
 Error: RMS (and largest) 3-D distance from the reference over a 21 x 21 grid
 of material points, as a fraction of the cloth's larger side, at 1, 2 and
@@ -53,6 +60,8 @@ DURATION = 3.0
 TIMES = (1.0, 2.0, 3.0)
 #: --quick: a smoke test (level 3, 0.5 s, h_ref = H/2).
 QUICK = dict(level=3, duration=0.5, times=(0.25, 0.5), divisor=2)
+#: m: how far the sensitivity run's start positions are moved (RMS per coordinate).
+PERTURB = 1e-9
 
 
 def sim_fingerprint() -> str:
@@ -71,6 +80,8 @@ def cache_dir() -> Path:
 
 def _cache_key(spec: dict, scene_text: str, fingerprint: str) -> str:
     ident = {k: spec[k] for k in ("scene", "overrides", "points", "times", "duration")}
+    if spec.get("perturb"):
+        ident["perturb"] = spec["perturb"]
     text = json.dumps(dict(ident, scene_text=scene_text, sim=fingerprint), sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:24]
 
@@ -171,6 +182,11 @@ def run_contact(out: Path, repeats: int = 3, quick: bool = False, cpu: int | Non
                 spec = dict(p["spec"], overrides=base + run["overrides"])
                 refs[run["kind"]] = _reference_run(spec, Path(tmp), f"{p['name']} {run['key']}",
                                                    cache, fingerprint, progress)
+                if run["kind"] == "reference":
+                    spec = dict(spec, perturb=dict(size=PERTURB, seed=1))
+                    refs["reference_perturbed"] = _reference_run(
+                        spec, Path(tmp), f"{p['name']} {run['key']} moved {PERTURB:g} m",
+                        cache, fingerprint, progress)
             rows.append(_row(p, candidates[p["name"]], refs, times))
     result = write_suite(out, "contact", rows, repeats, cpu, start, markdown)
     result.update(divisor=settings["divisor"], duration=duration, times=times,
@@ -187,6 +203,7 @@ def _row(plan: dict, candidates: list[dict], refs: dict, times: list[float]) -> 
     ref, ref2 = refs["reference"], refs["reference_2h"]
     errors = _distances(candidates[0]["samples"], ref["samples"], side)
     own = _distances(ref2["samples"], ref["samples"], side)
+    floor = _distances(refs["reference_perturbed"]["samples"], ref["samples"], side)
     costs = [c["cost"] for c in candidates]
     per_s = sorted(c["cpu_s"] / c["simulated_s"] for c in costs)
     wall = sorted(c["wall_s"] / c["simulated_s"] for c in costs)
@@ -202,6 +219,8 @@ def _row(plan: dict, candidates: list[dict], refs: dict, times: list[float]) -> 
         reference_diff_rms_frac=[e["rms"] for e in own],
         reference_diff_max_frac=[e["max"] for e in own],
         reference_richardson_rms_frac=[e["rms"] / 3.0 for e in own],
+        sensitivity_rms_frac=[e["rms"] for e in floor],
+        sensitivity_max_frac=[e["max"] for e in floor], sensitivity_perturbation_m=PERTURB,
         reference_cpu_s=ref["cost"]["cpu_s"], reference_2h_cpu_s=ref2["cost"]["cpu_s"],
         reference_cached=bool(ref.get("cached")),
         cpu_per_sim_s_median=float(np.median(per_s)), cpu_per_sim_s_min=per_s[0],

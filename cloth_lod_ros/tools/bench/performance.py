@@ -218,17 +218,23 @@ def contact_table(result: dict) -> str:
              "21 × 21 grid of material points as a fraction of the 1 m side (largest in "
              "brackets). The reference's own error: the whole difference between it and the "
              "same run at 2 h_ref (a bound for any order of convergence ≥ 1; the second-order "
-             "estimate is a third of it). Cost: CPU seconds per simulated second of the "
-             "default run, median (min–max).", "",
+             "estimate is a third of it). Sensitivity floor: the reference against itself "
+             "with every start position moved by 1 nm, at each sample time (folds over a "
+             "ball or on a floor pick their direction from whatever breaks the symmetry "
+             "first; an error below this cannot be told from it). Cost: CPU seconds per "
+             "simulated second of the default run, median (min–max).", "",
              "| scene | level | " + " | ".join(f"error at {t:g} s" for t in times)
-             + " | reference's own error | CPU s / sim s | steps / frame | solves / frame |",
-             "|---|---|" + "---|" * len(times) + "---|---|---|---|"]
+             + " | reference's own error | sensitivity floor | CPU s / sim s | steps / frame "
+             "| solves / frame |",
+             "|---|---|" + "---|" * len(times) + "---|---|---|---|---|"]
     for r in rows:
+        floor = r.get("sensitivity_rms_frac")
+        floor = (" / ".join(_contact_pct(e) for e in floor) if floor else "not measured")
         lines.append(
             f"| {r['scene']} | {r['level']} | "
             + " | ".join(f"{_contact_pct(e)} ({_contact_pct(m)})"
                          for e, m in zip(r["rms_frac"], r["max_frac"]))
-            + f" | ≤ {_contact_pct(max(r['reference_diff_rms_frac']))} | "
+            + f" | ≤ {_contact_pct(max(r['reference_diff_rms_frac']))} | {floor} | "
             f"{r['cpu_per_sim_s_median']:.3g} ({r['cpu_per_sim_s_min']:.3g}–"
             f"{r['cpu_per_sim_s_max']:.3g}) | {r['substeps_per_frame']:.2f} | "
             f"{r['solves_per_frame']:.1f} |")

@@ -27,7 +27,11 @@ def _worker(spec: dict) -> dict:
     ``rest`` (None, ``{"time": t}`` to sample at t, or ``{"find": {"threshold",
     "window", "cap"}}`` to find the rest time as described in the runner's
     docstring) and ``rest_time_step`` (optional, s: the step taken after the
-    timed window, on the way to rest; default the run's own).  Steps are
+    timed window, on the way to rest; default the run's own) and ``perturb``
+    (optional ``{"size": m, "seed": int}``: every particle's start position
+    moved by ``size`` times a standard normal sample per coordinate, to
+    measure how far the motion amplifies a change that small,
+    :mod:`..sensitivity`).  Steps are
     frames (``ClothSim.step()``: ``simulation.time_step``, substeps inside).
 
     Returns a JSON-ready dict: ``samples`` ((k, m, 3) positions, m, at
@@ -41,6 +45,9 @@ def _worker(spec: dict) -> dict:
     setup_start = _time.perf_counter()
     scene = load_scene(spec["scene"], spec["overrides"])
     sim = ClothSim(scene)
+    if spec.get("perturb"):
+        from ..sensitivity import perturb
+        perturb(sim, spec["perturb"]["size"], spec["perturb"].get("seed", 0))
     setup_s = _time.perf_counter() - setup_start
     h = scene.simulation.time_step
     points = np.asarray(spec["points"], dtype=float)
