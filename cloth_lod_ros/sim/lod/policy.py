@@ -426,7 +426,7 @@ class LodPolicy:
             keep = np.flatnonzero(ok)
             added = merge_energy_change(hierarchy, elements, vertex_ids, triangle_ids,
                                         vertices[keep], x, v, masses, self.material,
-                                        self.gravity, hinge_angle=measures.angle)
+                                        self.gravity)
             bound = 0.5 * self.material.density * added.area * cfg.max_merge_speed**2
             low = added.total <= bound
             keep = keep[low]

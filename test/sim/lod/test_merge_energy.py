@@ -84,7 +84,6 @@ def perturbed(seed, max_level=5, speed=0.3, offset=0.01):
     return sim
 
 
-@pytest.mark.xfail(strict=True, reason="issue 32: the bend part of merge_energy_change (and of the compiled check, check_kernels) is still the hinge sum, the bend energy is the stencils' (physics.bending)")
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_merge_energy_change_is_the_whole_mesh_energy_difference(seed):
     """The vectorised estimate equals the energy difference of the merged and
@@ -203,7 +202,6 @@ def test_every_merge_of_a_decision_adds_at_most_the_bound(seed):
     sim.hierarchy.check()
 
 
-@pytest.mark.xfail(strict=True, reason="issue 32: the bend part of merge_energy_change (and of the compiled check, check_kernels) is still the hinge sum, the bend energy is the stencils' (physics.bending)")
 def test_no_merge_of_a_long_hanging_run_adds_more_than_its_bound():
     """``hang_two_corners`` at level 6, 0.8 s from the horizontal start: every merge
     adds at most ``½ ρ A v²`` (v = 0.03 m/s: 0.09 µJ for a level-6 diamond, 5.6 µJ
