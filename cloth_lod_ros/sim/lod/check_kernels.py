@@ -11,9 +11,9 @@ calls inside one kernel, which saves the wrappers' conversions and three
 dispatches per check, run with the caches cold after a time step.  The
 numbers are the same kernels' and the last test's the same operations
 (:func:`_kept`; only the gravity term's product stays in numpy, as BLAS
-orders it, and the bend part of the merge energies, which is the reference's
-numpy code, :func:`~cloth_lod_ros.sim.lod.merge_bend.merge_bend_change`), so
-the decision is the staged one's bit for bit (tested:
+orders it; the bend part of the merge energies is
+:func:`~cloth_lod_ros.sim.lod.merge_bend_kernels.bend_changes`, as the staged
+path's), so the decision is the staged one's bit for bit (tested:
 test/sim/lod/test_check_kernels.py).
 """
 
@@ -23,7 +23,7 @@ import numpy as np
 
 from ..runtime import compiled as _compiled
 from .policy_kernels import _criterion, _merge_candidates, _refine_order
-from .merge_bend import merge_bend_change
+from .merge_bend_kernels import bend_changes
 from .merge_energy_kernels import _merge_energies
 
 __all__ = ["plain_decision", "warm_up"]
@@ -43,7 +43,7 @@ def _plain(hv, weight, ht, triangle_ids, x, v, kb, lookahead, threshold, level, 
     ``(ok, refine, candidates passing (a)-(d), their energies without the
     gravity term, kinetic parts, diamond areas, compact midpoints, chord
     offsets)``; ok False where one of them declines.  The energies lack the
-    bend part too (merge_bend.merge_bend_change, numpy, added by the caller)."""
+    bend part too (merge_bend_kernels.bend_changes, added by the caller)."""
     count = hv.shape[0]
     theta, deviation, refine_deviation = np.empty(count), np.empty(count), np.empty(count)
     rate, force, height = np.empty(count), np.empty(count), np.empty(count)
@@ -130,9 +130,8 @@ def plain_decision(hierarchy, elements, vertex_ids, triangle_ids, x, v, masses, 
         return None
     if not len(kept):
         return refine.tolist(), [], np.zeros(0), np.zeros(0), np.zeros(0)
-    # The bend part, merge_energy_change's own (numpy, batched over candidates).
-    delta += merge_bend_change(h, elements, vertex_ids, kept, mid, x,
-                               material.bend_stiffness)
+    # The bend part (merge_bend_kernels: compiled, the pieces' stencils).
+    delta += bend_changes(h, elements, vertex_ids, kept, mid, x, material.bend_stiffness)
     # The gravity term's product as merge_energy_change makes it (BLAS's order).
     gravity_offset = offset @ np.asarray(gravity, dtype=float)
     edges, energy, kinetic, bound = _kept(kept, delta, kinetic, masses[mid], gravity_offset,

@@ -48,30 +48,41 @@ import scipy.sparse as sp
 
 from ..physics.bending import bend_stencils
 
-__all__ = ["merge_bend_change", "stencil_centres"]
+__all__ = ["merge_bend_change", "stencil_centres", "stencil_energies_per_vertex"]
 
 
-def stencil_centres(verts: np.ndarray, coef: np.ndarray) -> np.ndarray:
+def stencil_centres(verts: np.ndarray, coef: np.ndarray, fitted: bool) -> np.ndarray:
     """The centre vertex of each stencil of one kind of
     :class:`~cloth_lod_ros.sim.physics.bending.BendStencils`, ``(s,)``.
 
     A line stencil (``[c, j₊, j₋, c]`` with coefficient 0 on the repeat) and a
-    fitted one (``[c, ring...]``) belong to c; a twist ``[e0, e1, o0, o1]`` to
-    ``min(e0, e1)``, its hypotenuse's lower id (which of its two triangles
-    lists it first does not matter).  Vertex ids as in ``verts``.
+    fitted one (``fitted``: ``[c, ring...]``) belong to c; a twist
+    ``[e0, e1, o0, o1]`` to ``min(e0, e1)``, its hypotenuse's lower id (which
+    of its two triangles lists it first does not matter).  Vertex ids as in
+    ``verts``.
     """
-    if verts.shape[1] != 4:                      # fitted stencils: the vertex itself
+    if fitted:
         return verts[:, 0]
     line = (verts[:, 3] == verts[:, 0]) & (coef[:, 3] == 0.0)
     return np.where(line, verts[:, 0], np.minimum(verts[:, 0], verts[:, 1]))
 
 
+def stencil_energies_per_vertex(stencils, x: np.ndarray) -> np.ndarray:
+    """``Σ |D_s x|²`` (dimensionless², ×k_b/2 is J) of the stencils centred
+    at each vertex, ``(n,)`` for positions ``x`` ``(n, 3)`` m."""
+    out = np.zeros(len(x))
+    for c, e in _stencil_energies(stencils, x):
+        out += np.bincount(c, weights=e, minlength=len(x))
+    return out
+
+
 def _stencil_energies(stencils, x: np.ndarray):
-    """``[(centres (s,), |D_s x|² (s,))]`` per kind (centres in ``x``'s ids)."""
+    """``[(centres (s,), |D_s x|² (s,))]`` per kind (centres in ``x``'s ids);
+    kind 0 the lines and twists, kind 1 the fits (BendStencils.kinds)."""
     out = []
-    for verts, coef in stencils.kinds:
+    for kind, (verts, coef) in enumerate(stencils.kinds):
         D = np.einsum("sk,skd->sd", coef, x[verts])
-        out.append((stencil_centres(verts, coef), np.einsum("sd,sd->s", D, D)))
+        out.append((stencil_centres(verts, coef, kind == 1), np.einsum("sd,sd->s", D, D)))
     return out
 
 
@@ -115,7 +126,6 @@ def merge_bend_change(hierarchy, elements, vertex_ids: np.ndarray, vertices: np.
     parents = h.vertex_parents[vertices]                            # (k, 2), -1 pad
     has = parents >= 0
     parent_tri = np.searchsorted(vertex_ids, h.tri[np.maximum(parents, 0)])   # (k, 2, 3)
-    # The children are the compact triangles containing m (its star).
     rows = np.repeat(np.arange(t), 3)
     incidence = sp.csr_matrix((np.ones(3 * t), (tri.ravel(), rows)), shape=(n, t))
     edge_i = tri[:, [0, 1, 2, 1, 2, 0]].ravel()
@@ -128,17 +138,15 @@ def merge_bend_change(hierarchy, elements, vertex_ids: np.ndarray, vertices: np.
         balls = _balls(start, adjacency, 5)
         near = np.asarray(balls[4] @ clamped.astype(float)).ravel() > 0
         centre_radius[near] = 3
+        piece_radius = centre_radius + np.where(near, 2, 1)
     else:
         balls = _balls(start, adjacency, 3)
-    piece_radius = centre_radius + (1 if clamped is None or not np.any(clamped) else 2)
+        piece_radius = centre_radius + 1
     centre = _pick(balls, centre_radius)                            # (k, n) 0/1
     piece = _pick(balls, piece_radius)
 
     # Before: the current stencils centred in each ball.
-    per_vertex = np.zeros(n)
-    for c, e in _stencil_energies(elements.bend, x):
-        per_vertex += np.bincount(c, weights=e, minlength=n)
-    before = centre @ per_vertex
+    before = centre @ stencil_energies_per_vertex(elements.bend, x)
 
     # After: each piece with the children replaced by the parents.
     touching = (piece @ incidence).tocoo()                          # (candidate, triangle)

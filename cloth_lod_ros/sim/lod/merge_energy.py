@@ -113,7 +113,8 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
     delta = np.bincount(np.concatenate([np.nonzero(has)[0], np.nonzero(kid_has)[0]]),
                         weights=sign * energy, minlength=k)
 
-    delta += merge_bend_change(h, elements, vertex_ids, vertices, mid, x, material.bend_stiffness)
+    delta += merge_bend_change(h, elements, vertex_ids, vertices, mid, x,
+                               material.bend_stiffness)
 
     # Kinetic and gravity: m's mass goes to the ends, which share the velocity change.
     particles = np.column_stack([mid, ends])

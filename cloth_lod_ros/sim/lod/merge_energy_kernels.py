@@ -1,10 +1,9 @@
 """Compiled (numba) merge energies of every candidate at once, the same numbers
 as :func:`cloth_lod_ros.sim.lod.merge_energy.merge_energy_change` (the
 reference's operations, in its order: ``test/sim/lod/test_policy_kernels.py``
-compares them bitwise).  The bend part is the reference's own numpy code
-(:func:`~cloth_lod_ros.sim.lod.merge_bend.merge_bend_change`: batched over
-candidates, it cuts a piece of mesh out around each one and makes its
-stencils with :func:`~cloth_lod_ros.sim.physics.bending.bend_stencils`).
+compares them bitwise), except the bend part, which
+:mod:`~cloth_lod_ros.sim.lod.merge_bend_kernels` computes (the stencils of a
+piece of mesh around each candidate; within ``test/tolerances.py``).
 """
 
 from __future__ import annotations
@@ -14,7 +13,7 @@ import numpy as np
 from ..mesh.hierarchy_kernels import merge_kinetic
 from ..runtime import compiled as _compiled
 from ..runtime.compiled import _as_float, _as_index, _jit
-from .merge_bend import merge_bend_change
+from .merge_bend_kernels import bend_changes
 from .policy_kernels import _dot3, _find, split_candidates, warm_up_hierarchy
 
 __all__ = ["merge_energies", "warm_up"]
@@ -122,8 +121,8 @@ def _merge_energies(vertices, vertex_ids, triangle_ids, vertex_edge, vertex_pare
 def merge_energies(hierarchy, elements, vertex_ids, triangle_ids, vertices, x, v, masses,
                    material, gravity):
     """``(total, kinetic, area)`` ``(k,)`` of merge_energy.merge_energy_change by
-    :func:`_merge_energies` and the bend part of :func:`~.merge_bend.merge_bend_change`
-    (numpy, the reference's own), or None when the kernels are off or an input
+    :func:`_merge_energies` and the bend part by
+    :func:`~.merge_bend_kernels.bend_changes`, or None when the kernels are off or an input
     is not what they expect (the caller then runs the reference).  Same
     arguments as merge_energy_change, vertices non-empty."""
     if not _compiled.enabled():
@@ -143,8 +142,7 @@ def merge_energies(hierarchy, elements, vertex_ids, triangle_ids, vertices, x, v
         float(material.shear_stiffness), delta, kinetic, area, mid, offset)
     if not ok:
         return None
-    delta += merge_bend_change(h, elements, vertex_ids, vertices, mid, x,
-                               material.bend_stiffness)
+    delta += bend_changes(h, elements, vertex_ids, vertices, mid, x, material.bend_stiffness)
     # The gravity term as the reference computes it (BLAS's order).
     delta += kinetic + masses[mid] * (offset @ np.asarray(gravity, dtype=float))
     return delta, kinetic, area
