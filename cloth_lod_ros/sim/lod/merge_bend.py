@@ -32,13 +32,20 @@ after is that of the piece's stencils centred in the ball, the energy before
 that of the current mesh's stencils (``elements.bend``) centred in the same
 ball.  Everything else cancels: the stencils outside the ball are the same
 before and after.  Vectorised over candidates: one sparse product per ball
-radius and one ``bend_stencils`` call, no per-candidate Python loop.
+radius and one ``bend_stencils`` call, no per-candidate Python loop.  Both
+radii are the smallest that pass ``test/sim/lod/test_merge_energy.py`` (one
+less fails it, with and without clamps).  This is the numpy reference; the
+compiled path (:mod:`~cloth_lod_ros.sim.lod.merge_bend_kernels`) makes the
+same pieces one candidate at a time in one kernel (the pieces overlap: the
+batch here costs ~10 times the whole mesh's stencils).
 
 Clamps (``elements.clamped``): a merge whose parent has all three corners
 clamped while m is not makes that parent a whole clamped triangle (its
 corners become *held*, which changes one-sided lines and fits up to a
 two-ring from them): such candidates, and every candidate with a clamped
-particle within distance 4, use centre radius 3 and a piece of radius 5.
+particle within distance 4 (a pin's disc cannot make one: m lies between
+held corners, so it is held too, and held particles are not merged), use
+centre radius 3 and a piece of radius 5.
 """
 
 from __future__ import annotations

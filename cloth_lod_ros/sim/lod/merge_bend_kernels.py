@@ -23,17 +23,33 @@ import numpy as np
 
 from ..runtime import compiled as _compiled
 from ..runtime.compiled import _as_float, _as_index, _jit
-from .merge_bend import merge_bend_change, stencil_energies_per_vertex
+from .merge_bend import merge_bend_change
 
 __all__ = ["bend_changes"]
 
 _OCT = math.pi / 4.0
 
 
+#: cos and sin of the 45° classes 0..7.
+_COS = np.array([math.cos(k * _OCT) for k in range(8)])
+_SIN = np.array([math.sin(k * _OCT) for k in range(8)])
+
+
 @_jit
-def _leg_class(du, dv):
-    """Class 0..3 of a leg direction (its 45° class mod 4)."""
-    return int(np.rint(math.atan2(dv, du) / _OCT)) % 4
+def _direction_class(du, dv):
+    """45° class 0..7 of the direction (du, dv), -1 off the lattice (within
+    1e-7 rad, bending._directions' test; comparisons instead of atan2)."""
+    ax, ay = abs(du), abs(dv)
+    tol = 1e-7 * max(ax, ay)
+    if ay <= tol:
+        return 0 if du > 0 else 4
+    if ax <= tol:
+        return 2 if dv > 0 else 6
+    if abs(ax - ay) <= tol:
+        if du > 0:
+            return 1 if dv > 0 else 7
+        return 3 if dv > 0 else 5
+    return -1
 
 
 @_jit
@@ -105,10 +121,8 @@ def _piece_energy(tl, luv, lclamped, lx, centre, lid):
                     continue
                 b = tl[T, jj]
                 du, dv = luv[b, 0] - luv[a, 0], luv[b, 1] - luv[a, 1]
-                ang = math.atan2(dv, du)
-                kk = np.rint(ang / _OCT)
-                if abs(ang - kk * _OCT) < 1e-7:
-                    c = int(kk) % 8
+                c = _direction_class(du, dv)
+                if c >= 0:
                     nb[a, c] = b
                     nlen[a, c] = math.hypot(du, dv)
                 for s in range(8):
@@ -124,8 +138,8 @@ def _piece_energy(tl, luv, lclamped, lx, centre, lid):
         area[T] = 0.0 if all_held else 0.5 * abs(d1u * d2v - d1v * d2u)
         if not all_held:
             not_whole_held[a0] = not_whole_held[a1] = not_whole_held[a2] = True
-        cls_u[T] = _leg_class(d1u, d1v)
-        cls_v[T] = _leg_class(d2u, d2v)
+        cls_u[T] = _direction_class(d1u, d1v) % 4       # legs are on the lattice
+        cls_v[T] = _direction_class(d2u, d2v) % 4
 
     # Corners at the centres: line weights (a line exists) or missing lines (G).
     weight = np.zeros((nl, 4))
@@ -141,7 +155,7 @@ def _piece_energy(tl, luv, lclamped, lx, centre, lid):
                 if nb[q, c] >= 0 and nb[q, c + 4] >= 0:
                     weight[q, c] += alpha
                 else:
-                    d0, d1 = math.cos(c * _OCT), math.sin(c * _OCT)
+                    d0, d1 = _COS[c], _SIN[c]
                     vec[0], vec[1], vec[2] = d0 * d0, d1 * d1, 2.0 * d0 * d1
                     for r in range(3):
                         for s in range(3):
@@ -199,8 +213,8 @@ def _piece_energy(tl, luv, lclamped, lx, centre, lid):
     for T in range(nt):
         if in_diamond[T]:
             continue
-        u0, u1 = math.cos(cls_u[T] * _OCT), math.sin(cls_u[T] * _OCT)
-        v0, v1 = math.cos(cls_v[T] * _OCT), math.sin(cls_v[T] * _OCT)
+        u0, u1 = _COS[cls_u[T]], _SIN[cls_u[T]]
+        v0, v1 = _COS[cls_v[T]], _SIN[cls_v[T]]
         vec[0], vec[1], vec[2] = u0 * v0, u1 * v1, u0 * v1 + u1 * v0
         for j in range(3):
             q = tl[T, j]
@@ -379,6 +393,24 @@ def _bend_changes(mid, parent_tri, has, tri, uv, clamped, any_clamped, vt_ptr, v
             dist[queue[q]] = -1
 
 
+@_jit
+def _add_per_centre(verts, coef, fitted, x, out):
+    """``out[c] += |D_s x|²`` for the stencils ``verts``, ``coef`` ``(s, w)`` of
+    one kind, c each one's centre (merge_bend.stencil_centres)."""
+    for s in range(verts.shape[0]):
+        if fitted:
+            c = verts[s, 0]
+        elif verts[s, 3] == verts[s, 0] and coef[s, 3] == 0.0:
+            c = verts[s, 0]
+        else:
+            c = min(verts[s, 0], verts[s, 1])
+        for d in range(3):
+            D = 0.0
+            for j in range(verts.shape[1]):
+                D += coef[s, j] * x[verts[s, j], d]
+            out[c] += D * D
+
+
 def bend_changes(hierarchy, elements, vertex_ids, vertices, mid, x, bend_stiffness):
     """:func:`~cloth_lod_ros.sim.lod.merge_bend.merge_bend_change` by
     :func:`_bend_changes` (same arguments), or by that numpy reference when
@@ -400,7 +432,9 @@ def bend_changes(hierarchy, elements, vertex_ids, vertices, mid, x, bend_stiffne
     clamped = (np.zeros(n, dtype=bool) if elements.clamped is None
                else np.ascontiguousarray(elements.clamped, dtype=bool))
     x = _as_float(x)
-    per_vertex = stencil_energies_per_vertex(elements.bend, x)
+    per_vertex = np.zeros(n)
+    for kind, (verts, coef) in enumerate(elements.bend.kinds):
+        _add_per_centre(_as_index(verts), _as_float(coef), kind == 1, x, per_vertex)
     before, after = np.empty(k), np.empty(k)
     _bend_changes(_as_index(mid), _as_index(parent_tri), np.ascontiguousarray(has),
                   tri, _as_float(elements.rest_uv), clamped, bool(clamped.any()),

@@ -17,18 +17,22 @@ state, the change of the cloth's total mechanical energy
     ΔE = Δ(stretch + shear) + Δbend + Δkinetic + Δgravity      (J)
 
 that merging that one candidate alone would make: the membrane energy of its
-one or two parents against its two or four children, the bend energy of the
-hinges that touch m against the hinges that replace them (the chord hinge,
-and the diamond's outer edges with m replaced by the parent's corner), the
-kinetic energy of m and both ends before and after the velocity change of
+one or two parents against its two or four children, the bend energy's
+change (:mod:`cloth_lod_ros.sim.lod.merge_bend`: the stencil energy of
+:mod:`cloth_lod_ros.sim.physics.bending` on a piece of mesh around m, before
+and after, clamps included; the merge changes stencils centred up to two
+rings from m), the kinetic energy of m and both ends before and after the
+velocity change of
 :func:`cloth_lod_ros.sim.mesh.hierarchy.merge_velocity_change`, and
 ``m_mid g · (x_mid − ½(x_left + x_right))``.  It is the exact energy
 difference of the merged and unmerged meshes (tested against whole-mesh
 energies), vectorised over candidates: no per-candidate Python loop.
-Merges applied one after another interact only through a shared edge end
-(its mass and velocity: the ``kinetic`` part, which
-:func:`merge_kinetic_change` recomputes) or a shared outer edge (the triangle
-across it); :meth:`cloth_lod_ros.sim.lod.policy.LodPolicy.apply` deals with both.
+Merges applied one after another interact through a shared edge end (its
+mass and velocity: the ``kinetic`` part, which :func:`merge_kinetic_change`
+recomputes) or a shared outer edge (the triangle across it), which
+:meth:`cloth_lod_ros.sim.lod.policy.LodPolicy.apply` deals with, and through
+the bending stencils within a few rings of both, which it does not test
+again: there a merge's bend part is that of the mesh before the decision.
 """
 
 from __future__ import annotations

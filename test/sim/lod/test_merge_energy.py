@@ -256,8 +256,9 @@ def test_no_merge_of_a_long_hanging_run_adds_more_than_its_bound():
     momentum.  Before the energy test, 143 merges of the first 3 s added more
     than 1 µJ, the largest +0.96 mJ (t = 0.43 s, almost all stretch).  The
     merges start at t ≈ 0.45 s, when the fall's first swing slows; by 0.8 s
-    there are over 100 of them and the misses of issue 32 are all there (22 of
-    133 above their bound, the largest 195 times it at t = 0.667 s; over 3 s,
+    there are over 100 of them.  With the bend part of the estimate taken from
+    the hinge sum while the energy was the stencils' (issue 32), 22 of 133
+    were above their bound, the largest 195 times it at t = 0.667 s (over 3 s,
     48 of 518 and the same largest, at 3 times the cost)."""
     sim = ClothSim(load_scene("hang_two_corners"))
     assert sim.scene.lod.max_merge_speed == 0.03
