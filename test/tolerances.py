@@ -258,8 +258,7 @@ def assert_lod_decisions_agree(ours, reference, policy, hierarchy, elements, ver
         previous = compiled.use(False)
         try:
             added = merge_energy_change(hierarchy, elements, vertex_ids, triangle_ids, mids, x,
-                                        v, masses, policy.material, policy.gravity,
-                                        hinge_angle=measures.angle)
+                                        v, masses, policy.material, policy.gravity)
         finally:
             compiled.use(previous)
         bound = 0.5 * policy.material.density * added.area * cfg.max_merge_speed ** 2

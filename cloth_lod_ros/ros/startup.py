@@ -38,7 +38,8 @@ __all__ = ["KERNEL_MODULES", "FIRST_START_S", "PREFIX", "KernelCache", "cache_di
 #: relative to ``sim/`` without ``.py`` (``test/test_startup.py`` checks the
 #: list against the package).  numba caches each beside its own part's folder.
 KERNEL_MODULES = ("contact/self_broad_kernels", "inputs/holding_kernels",
-                  "lod/check_kernels", "lod/merge_energy_kernels", "lod/policy_kernels",
+                  "lod/check_kernels", "lod/merge_bend_kernels", "lod/merge_energy_kernels",
+                  "lod/policy_kernels",
                   "lod/round_kernels", "mesh/compact_kernels", "mesh/hierarchy_kernels",
                   "mesh/int_table", "mesh/topology_kernels", "physics/elements_kernels",
                   "physics/energies_kernels", "physics/forces_kernels",

@@ -11,7 +11,9 @@ calls inside one kernel, which saves the wrappers' conversions and three
 dispatches per check, run with the caches cold after a time step.  The
 numbers are the same kernels' and the last test's the same operations
 (:func:`_kept`; only the gravity term's product stays in numpy, as BLAS
-orders it), so the decision is the staged one's bit for bit (tested:
+orders it; the bend part of the merge energies is
+:func:`~cloth_lod_ros.sim.lod.merge_bend_kernels.bend_changes`, as the staged
+path's), so the decision is the staged one's bit for bit (tested:
 test/sim/lod/test_check_kernels.py).
 """
 
@@ -21,6 +23,7 @@ import numpy as np
 
 from ..runtime import compiled as _compiled
 from .policy_kernels import _criterion, _merge_candidates, _refine_order
+from .merge_bend_kernels import bend_changes
 from .merge_energy_kernels import _merge_energies
 
 __all__ = ["plain_decision", "warm_up"]
@@ -39,7 +42,8 @@ def _plain(hv, weight, ht, triangle_ids, x, v, kb, lookahead, threshold, level, 
     _merge_energies in turn (their arguments, as decide passes them):
     ``(ok, refine, candidates passing (a)-(d), their energies without the
     gravity term, kinetic parts, diamond areas, compact midpoints, chord
-    offsets)``; ok False where one of them declines."""
+    offsets)``; ok False where one of them declines.  The energies lack the
+    bend part too (merge_bend_kernels.bend_changes, added by the caller)."""
     count = hv.shape[0]
     theta, deviation, refine_deviation = np.empty(count), np.empty(count), np.empty(count)
     rate, force, height = np.empty(count), np.empty(count), np.empty(count)
@@ -63,9 +67,8 @@ def _plain(hv, weight, ht, triangle_ids, x, v, kb, lookahead, threshold, level, 
     delta, kinetic, diamond_area = np.empty(k), np.empty(k), np.empty(k)
     mid, offset = np.empty(k, np.int64), np.empty((k, 3))
     if k and not _merge_energies(kept, vertex_ids, triangle_ids, vertex_edge, vertex_parents,
-                                 pool_tri, children, uv, tri, coef_u, coef_v, area, hv, ht,
-                                 weight, theta, x, v, masses, ks, ksh, kb, delta, kinetic,
-                                 diamond_area, mid, offset):
+                                 pool_tri, children, uv, tri, coef_u, coef_v, area, x, v,
+                                 masses, ks, ksh, delta, kinetic, diamond_area, mid, offset):
         return False, out[:0], none, empty, empty, empty, none, np.empty((0, 3))
     return True, out[:written], kept, delta, kinetic, diamond_area, mid, offset
 
@@ -127,6 +130,8 @@ def plain_decision(hierarchy, elements, vertex_ids, triangle_ids, x, v, masses, 
         return None
     if not len(kept):
         return refine.tolist(), [], np.zeros(0), np.zeros(0), np.zeros(0)
+    # The bend part (merge_bend_kernels: compiled, the pieces' stencils).
+    delta += bend_changes(h, elements, vertex_ids, kept, mid, x, material.bend_stiffness)
     # The gravity term's product as merge_energy_change makes it (BLAS's order).
     gravity_offset = offset @ np.asarray(gravity, dtype=float)
     edges, energy, kinetic, bound = _kept(kept, delta, kinetic, masses[mid], gravity_offset,

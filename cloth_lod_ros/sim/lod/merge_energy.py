@@ -17,18 +17,22 @@ state, the change of the cloth's total mechanical energy
     ΔE = Δ(stretch + shear) + Δbend + Δkinetic + Δgravity      (J)
 
 that merging that one candidate alone would make: the membrane energy of its
-one or two parents against its two or four children, the bend energy of the
-hinges that touch m against the hinges that replace them (the chord hinge,
-and the diamond's outer edges with m replaced by the parent's corner), the
-kinetic energy of m and both ends before and after the velocity change of
+one or two parents against its two or four children, the bend energy's
+change (:mod:`cloth_lod_ros.sim.lod.merge_bend`: the stencil energy of
+:mod:`cloth_lod_ros.sim.physics.bending` on a piece of mesh around m, before
+and after, clamps included; the merge changes stencils centred up to two
+rings from m), the kinetic energy of m and both ends before and after the
+velocity change of
 :func:`cloth_lod_ros.sim.mesh.hierarchy.merge_velocity_change`, and
 ``m_mid g · (x_mid − ½(x_left + x_right))``.  It is the exact energy
 difference of the merged and unmerged meshes (tested against whole-mesh
 energies), vectorised over candidates: no per-candidate Python loop.
-Merges applied one after another interact only through a shared edge end
-(its mass and velocity: the ``kinetic`` part, which
-:func:`merge_kinetic_change` recomputes) or a shared outer edge (the triangle
-across it); :meth:`cloth_lod_ros.sim.lod.policy.LodPolicy.apply` deals with both.
+Merges applied one after another interact through a shared edge end (its
+mass and velocity: the ``kinetic`` part, which :func:`merge_kinetic_change`
+recomputes) or a shared outer edge (the triangle across it), which
+:meth:`cloth_lod_ros.sim.lod.policy.LodPolicy.apply` deals with, and through
+the bending stencils within a few rings of both, which it does not test
+again: there a merge's bend part is that of the mesh before the decision.
 """
 
 from __future__ import annotations
@@ -38,9 +42,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import merge_energy_kernels
-from ..physics.elements import Elements, hinge_weights, triangle_maps
+from ..physics.elements import Elements, triangle_maps
 from ..physics.energies import membrane_energies
-from ..physics.hinges_kernels import hinge_angles       # compiled when numba is there
+from .merge_bend import merge_bend_change
 from ..mesh.hierarchy import Hierarchy48, merge_velocity_change
 
 __all__ = ["MergeEnergy", "merge_energy_change", "merge_kinetic_change"]
@@ -63,8 +67,8 @@ class MergeEnergy:
 
 def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: np.ndarray,
                         triangle_ids: np.ndarray, vertices: np.ndarray, x: np.ndarray,
-                        v: np.ndarray, masses: np.ndarray, material, gravity,
-                        hinge_angle: np.ndarray | None = None) -> "MergeEnergy":
+                        v: np.ndarray, masses: np.ndarray, material,
+                        gravity) -> "MergeEnergy":
     """Energy change, J, of merging each split particle in ``vertices`` alone.
 
     Args:
@@ -79,8 +83,6 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
         material: with ``stretch_stiffness``, ``shear_stiffness`` (N/m) and
             ``bend_stiffness`` (N·m).
         gravity: ``(3,)`` m/s².
-        hinge_angle: ``(h,)`` θ of the compact hinges at ``x`` in rad, if
-            already computed (the criterion has them); else computed here.
 
     Returns:
         :class:`MergeEnergy`: ``total`` ``(k,)`` ΔE in J (positive when the
@@ -91,8 +93,7 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
     if k == 0:
         return MergeEnergy(np.zeros(0), np.zeros(0), np.zeros(0))
     compiled = merge_energy_kernels.merge_energies(hierarchy, elements, vertex_ids, triangle_ids,
-                                                   vertices, x, v, masses, material, gravity,
-                                                   hinge_angle)
+                                                   vertices, x, v, masses, material, gravity)
     if compiled is not None:        # one compiled pass, bitwise this reference's numbers
         return MergeEnergy(*compiled)
     h = hierarchy
@@ -116,8 +117,8 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
     delta = np.bincount(np.concatenate([np.nonzero(has)[0], np.nonzero(kid_has)[0]]),
                         weights=sign * energy, minlength=k)
 
-    delta += _bend_change(elements, vertex_ids, h, mid, ends, parent_tri, parent_area, has,
-                          x, material.bend_stiffness, hinge_angle)
+    delta += merge_bend_change(h, elements, vertex_ids, vertices, mid, x,
+                               material.bend_stiffness)
 
     # Kinetic and gravity: m's mass goes to the ends, which share the velocity change.
     particles = np.column_stack([mid, ends])
@@ -149,54 +150,3 @@ def merge_kinetic_change(masses: np.ndarray, velocities: np.ndarray) -> np.ndarr
 
 def _sq(a: np.ndarray) -> np.ndarray:
     return np.einsum("kd,kd->k", a, a)
-
-
-def _bend_change(elements, vertex_ids, h, mid, ends, parent_tri, parent_area, has, x,
-                 bend_stiffness, hinge_angle) -> np.ndarray:
-    """Bend part of :func:`merge_energy_change`, J, ``(k,)``."""
-    k = len(mid)
-    hv = elements.hinge_vertices
-    if len(hv) == 0:
-        return np.zeros(k)
-    owner = np.full(len(x), -1, dtype=np.int64)
-    owner[mid] = np.arange(k)
-    rows, cols = np.nonzero(owner[hv] >= 0)             # hinges touching a candidate's m
-    cand = owner[hv[rows, cols]]
-    theta = hinge_angles(x, hv[rows]) if hinge_angle is None else hinge_angle[rows]
-    before = np.bincount(cand, weights=elements.hinge_weight[rows] * theta**2, minlength=k)
-    area = np.zeros((k, 2))                              # both parents have the same level
-    area[has] = parent_area
-
-    # The diamond's outer edges (m opposite them): after the merge their inner
-    # side is a parent, whose third corner is the end of the split edge that the
-    # outer edge does not contain; the edge is a leg of that parent.
-    outer = cols >= 2
-    rows, cols, cand = rows[outer], cols[outer], cand[outer]
-    new_hv = hv[rows].copy()
-    left, right = ends[cand, 0], ends[cand, 1]
-    has_left = (new_hv[:, :2] == left[:, None]).any(axis=1)
-    new_hv[np.arange(len(rows)), cols] = np.where(has_left, right, left)
-    other = elements.hinge_triangles[rows, 3 - cols]     # the triangle outside the diamond
-    corner = elements.triangles[other]
-    e0, e1 = new_hv[:, 0], new_hv[:, 1]
-    other_hyp = (((e0 == corner[:, 1]) & (e1 == corner[:, 2]))
-                 | ((e0 == corner[:, 2]) & (e1 == corner[:, 1])))
-    weight = hinge_weights(_length2(h.uv[vertex_ids[e1]] - h.uv[vertex_ids[e0]]),
-                           np.column_stack([area[cand, 0], elements.area[other]]),
-                           np.column_stack([np.zeros(len(rows), dtype=bool), other_hyp]))
-
-    # The split edge is a hinge again where the diamond has two parents:
-    # (left, right) of the first parent, whose opposite corner is its apex.
-    both = np.flatnonzero(has.all(axis=1))
-    p0, p1 = parent_tri[both, 0], parent_tri[both, 1]
-    chord = np.column_stack([p0[:, 1], p0[:, 2], p0[:, 0], p1[:, 0]])
-    chord_weight = hinge_weights(_length2(h.uv[vertex_ids[p0[:, 2]]] - h.uv[vertex_ids[p0[:, 1]]]),
-                                 area[both], np.ones((len(both), 2), dtype=bool))
-    theta = hinge_angles(x, np.concatenate([new_hv, chord]))
-    after = np.bincount(np.concatenate([cand, both]), minlength=k,
-                        weights=np.concatenate([weight, chord_weight]) * theta**2)
-    return 0.5 * bend_stiffness * (after - before)
-
-
-def _length2(d: np.ndarray) -> np.ndarray:
-    return np.einsum("hd,hd->h", d, d)

@@ -1,7 +1,9 @@
 """Compiled (numba) merge energies of every candidate at once, the same numbers
 as :func:`cloth_lod_ros.sim.lod.merge_energy.merge_energy_change` (the
 reference's operations, in its order: ``test/sim/lod/test_policy_kernels.py``
-compares them bitwise).
+compares them bitwise), except the bend part, which
+:mod:`~cloth_lod_ros.sim.lod.merge_bend_kernels` computes (the stencils of a
+piece of mesh around each candidate; within ``test/tolerances.py``).
 """
 
 from __future__ import annotations
@@ -9,11 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..mesh.hierarchy_kernels import merge_kinetic
-from ..physics import hinges_kernels as _hinges_kernels
 from ..runtime import compiled as _compiled
-from ..physics.hinges_kernels import _hinge_geometry
 from ..runtime.compiled import _as_float, _as_index, _jit
-from .policy_kernels import _dot2, _dot3, _find, split_candidates, warm_up_hierarchy
+from .merge_bend_kernels import bend_changes
+from .policy_kernels import _dot3, _find, split_candidates, warm_up_hierarchy
 
 __all__ = ["merge_energies", "warm_up"]
 
@@ -38,20 +39,18 @@ def _membrane(cu0, cu1, cu2, cv0, cv1, cv2, area, x, i0, i1, i2, ks, ksh):
 
 @_jit
 def _merge_energies(vertices, vertex_ids, triangle_ids, vertex_edge, vertex_parents,
-                    pool_tri, children, uv, tri, coef_u, coef_v, area, hv, hinge_tri,
-                    hinge_weight, theta, x, v, masses, ks, ksh, kb,
+                    pool_tri, children, uv, tri, coef_u, coef_v, area, x, v, masses, ks, ksh,
                     delta, kinetic, diamond_area, mid, offset):
-    """merge_energy.merge_energy_change of every candidate, without the gravity term.
+    """merge_energy.merge_energy_change of every candidate, without the bend
+    and gravity terms.
 
     Args:
         vertices ``(k,)`` pool ids of the split particles; vertex_ids,
         triangle_ids: the increasing pool ids of the compact vertices and
         triangles; vertex_edge, vertex_parents, pool_tri, children, uv: the
-        hierarchy's pool arrays; tri, coef_u, coef_v, area, hv, hinge_tri,
-        hinge_weight: the compact elements; theta ``(h,)`` rad the hinge
-        angles at x; x, v ``(n, 3)`` m, m/s; masses ``(n,)`` kg; ks, ksh N/m,
-        kb N·m.
-        delta: ``(k,)`` output, the membrane and bend change, J; kinetic
+        hierarchy's pool arrays; tri, coef_u, coef_v, area: the compact
+        elements; x, v ``(n, 3)`` m, m/s; masses ``(n,)`` kg; ks, ksh N/m.
+        delta: ``(k,)`` output, the membrane change, J; kinetic
         ``(k,)`` its kinetic change, J; diamond_area ``(k,)`` m²; mid ``(k,)``
         compact m; offset ``(k, 3)`` ``x_mid − ½(x_left + x_right)``, m.
 
@@ -59,11 +58,9 @@ def _merge_energies(vertices, vertex_ids, triangle_ids, vertex_edge, vertex_pare
         False if a pool id is not in the compact ids (nothing valid written).
     """
     k_count = vertices.shape[0]
-    n = x.shape[0]
     ends = np.empty((k_count, 2), dtype=np.int64)
     corners = np.empty((k_count, 2, 3), dtype=np.int64)   # compact parent corners
     parent_area = np.zeros((k_count, 2))
-    owner = np.full(n, -1, dtype=np.int64)
     for i in range(k_count):
         m = vertices[i]
         mi = _find(vertex_ids, m)
@@ -72,7 +69,6 @@ def _merge_energies(vertices, vertex_ids, triangle_ids, vertex_edge, vertex_pare
         if mi < 0 or left < 0 or right < 0:
             return False
         mid[i], ends[i, 0], ends[i, 1] = mi, left, right
-        owner[mi] = i
         # Membrane: + the parents (elements.triangle_maps of their rest corners),
         # − their children, in np.bincount's order (parents, then children).
         total = 0.0
@@ -112,50 +108,7 @@ def _merge_energies(vertices, vertex_ids, triangle_ids, vertex_edge, vertex_pare
         delta[i] = total
         diamond_area[i] = summed_area       # 0 + parent areas, as np.bincount adds them
 
-    # Bend: the hinges touching m against those replacing them (merge_energy._bend_change),
-    # each candidate's sums in hinge order as np.bincount adds them.
-    before = np.zeros(k_count)
-    after = np.zeros(k_count)
-    new = np.empty(4, dtype=np.int64)
-    g = np.empty(12)                 # ∂θ/∂x of one hinge (not used)
-    for h in range(hv.shape[0]):
-        for col in range(4):
-            o = owner[hv[h, col]]
-            if o < 0:
-                continue
-            before[o] += hinge_weight[h] * (theta[h] * theta[h])
-            if col < 2:
-                continue
-            # An outer edge of o's diamond: m becomes the parent's third corner.
-            for j in range(4):
-                new[j] = hv[h, j]
-            left, right = ends[o, 0], ends[o, 1]
-            new[col] = right if (new[0] == left or new[1] == left) else left
-            other = hinge_tri[h, 3 - col]
-            e0, e1 = new[0], new[1]
-            hyp = (((e0 == tri[other, 1]) and (e1 == tri[other, 2]))
-                   or ((e0 == tri[other, 2]) and (e1 == tri[other, 1])))
-            u0, u1 = vertex_ids[e0], vertex_ids[e1]
-            length2 = _dot2(uv[u1, 0] - uv[u0, 0], uv[u1, 1] - uv[u0, 1],
-                            uv[u1, 0] - uv[u0, 0], uv[u1, 1] - uv[u0, 1])
-            gamma = 1.0 - 0.25 * (0.0 + (1.0 if hyp else 0.0))
-            weight = gamma * length2 / (parent_area[o, 0] + area[other])
-            th = _hinge_geometry(x, new[0], new[1], new[2], new[3], g)
-            after[o] += weight * (th * th)
     for i in range(k_count):
-        m = vertices[i]
-        # The reference's bend part is 0 on a mesh without hinges (no chord either).
-        if hv.shape[0] > 0 and vertex_parents[m, 0] >= 0 and vertex_parents[m, 1] >= 0:
-            # The split edge is a hinge again: (left, right) of the first parent.
-            p0, p1 = corners[i, 0], corners[i, 1]
-            u0, u1 = vertex_ids[p0[1]], vertex_ids[p0[2]]
-            length2 = _dot2(uv[u1, 0] - uv[u0, 0], uv[u1, 1] - uv[u0, 1],
-                            uv[u1, 0] - uv[u0, 0], uv[u1, 1] - uv[u0, 1])
-            weight = 0.5 * length2 / (parent_area[i, 0] + parent_area[i, 1])
-            th = _hinge_geometry(x, p0[1], p0[2], p0[0], p1[0], g)
-            after[i] += weight * (th * th)
-        delta[i] += 0.5 * kb * (after[i] - before[i])
-
         # Kinetic (merge_kinetic_change) and the offset of m from the chord.
         mi, left, right = mid[i], ends[i, 0], ends[i, 1]
         for d in range(3):
@@ -166,18 +119,16 @@ def _merge_energies(vertices, vertex_ids, triangle_ids, vertex_edge, vertex_pare
 
 
 def merge_energies(hierarchy, elements, vertex_ids, triangle_ids, vertices, x, v, masses,
-                   material, gravity, hinge_angle):
+                   material, gravity):
     """``(total, kinetic, area)`` ``(k,)`` of merge_energy.merge_energy_change by
-    :func:`_merge_energies`, or None when the kernels are off or an input is not
-    what they expect (the caller then runs the reference).  Same arguments as
-    merge_energy_change, vertices non-empty."""
+    :func:`_merge_energies` and the bend part by
+    :func:`~.merge_bend_kernels.bend_changes`, or None when the kernels are off or an input
+    is not what they expect (the caller then runs the reference).  Same
+    arguments as merge_energy_change, vertices non-empty."""
     if not _compiled.enabled():
         return None
     h = hierarchy
     x = _as_float(x)
-    hv = _as_index(elements.hinge_vertices).reshape(-1, 4)
-    theta = (_hinges_kernels.hinge_angles(x, hv) if hinge_angle is None
-             else _as_float(hinge_angle))
     k = len(vertices)
     delta, kinetic, area = np.empty(k), np.empty(k), np.empty(k)
     mid, offset = np.empty(k, dtype=np.int64), np.empty((k, 3))
@@ -186,16 +137,12 @@ def merge_energies(hierarchy, elements, vertex_ids, triangle_ids, vertices, x, v
         _as_index(h.vertex_edge), _as_index(h.vertex_parents), _as_index(h.tri),
         _as_index(h.children), _as_float(h.uv),
         _as_index(elements.triangles), _as_float(elements.coef_u),
-        _as_float(elements.coef_v),
-        _as_float(elements.area), hv,
-        _as_index(elements.hinge_triangles).reshape(-1, 2),
-        _as_float(elements.hinge_weight), theta, x,
-        _as_float(v),
-        _as_float(masses),
-        float(material.stretch_stiffness), float(material.shear_stiffness),
-        float(material.bend_stiffness), delta, kinetic, area, mid, offset)
+        _as_float(elements.coef_v), _as_float(elements.area), x, _as_float(v),
+        _as_float(masses), float(material.stretch_stiffness),
+        float(material.shear_stiffness), delta, kinetic, area, mid, offset)
     if not ok:
         return None
+    delta += bend_changes(h, elements, vertex_ids, vertices, mid, x, material.bend_stiffness)
     # The gravity term as the reference computes it (BLAS's order).
     delta += kinetic + masses[mid] * (offset @ np.asarray(gravity, dtype=float))
     return delta, kinetic, area
@@ -211,7 +158,6 @@ def warm_up() -> None:
     h, vertex_ids, triangle_ids, elements = warm_up_hierarchy()
     x, v = h.x[vertex_ids], h.v[vertex_ids]
     vertices, _ = split_candidates(h)
-    theta = _hinges_kernels.hinge_angles(x, elements.hinge_vertices)
     material = SimpleNamespace(stretch_stiffness=1.0, shear_stiffness=1.0, bend_stiffness=1.0)
     merge_energies(h, elements, vertex_ids, triangle_ids, vertices, x, v,
-                   h.masses[vertex_ids], material, np.zeros(3), theta)
+                   h.masses[vertex_ids], material, np.zeros(3))

@@ -426,7 +426,7 @@ class LodPolicy:
             keep = np.flatnonzero(ok)
             added = merge_energy_change(hierarchy, elements, vertex_ids, triangle_ids,
                                         vertices[keep], x, v, masses, self.material,
-                                        self.gravity, hinge_angle=measures.angle)
+                                        self.gravity)
             bound = 0.5 * self.material.density * added.area * cfg.max_merge_speed**2
             low = added.total <= bound
             keep = keep[low]
@@ -509,14 +509,16 @@ class LodPolicy:
         Refinements go first; merges only touch all-leaf diamonds, which keeps
         the mesh conforming.  The energy a merge adds was tested on the state
         before the decision (:func:`~cloth_lod_ros.sim.lod.merge_energy.merge_energy_change`).
-        An earlier operation of the same decision changes it in two ways only:
-        through the mass or velocity of one of its edge ends (its kinetic part
-        is then computed again, and the merge skipped if the total now exceeds
-        its bound), or by replacing a triangle across one of its diamond's
-        outer edges (the merge is skipped).  So every merge adds at most its
-        bound.  A skipped merge, or one a split made invalid, is decided again
-        at the next check.  With ``log``, every operation performed is
-        appended to it in order (undo: apply their inverses in reverse).
+        An earlier operation of the same decision changes it through the mass
+        or velocity of one of its edge ends (its kinetic part is then computed
+        again, and the merge skipped if the total now exceeds its bound), by
+        replacing a triangle across one of its diamond's outer edges (the
+        merge is skipped), or through the bending stencils a few rings around
+        it (not tested again: its bend part is the one decided).  So every
+        merge adds at most its bound up to that last part.  A skipped merge,
+        or one a split made invalid, is decided again at the next check.  With
+        ``log``, every operation performed is appended to it in order (undo:
+        apply their inverses in reverse).
 
         With the compiled kernels, :meth:`Hierarchy48.carry_out` does all of
         this in one call (the code below is its reference; same results).

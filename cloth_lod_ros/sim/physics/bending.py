@@ -91,7 +91,8 @@ def _directions(uv: np.ndarray, tri: np.ndarray):
 
 
 def bend_stencils(uv: np.ndarray, tri: np.ndarray,
-                  clamped: np.ndarray | None = None) -> BendStencils:
+                  clamped: np.ndarray | None = None,
+                  fit: np.ndarray | None = None) -> BendStencils:
     """Stencils of the squared-Hessian energy (module docstring) of the mesh
     with rest coordinates ``uv`` ``(n, 2)`` m and triangles ``tri`` ``(t, 3)``
     ``(apex, left, right)`` (apex at the right angle).
@@ -108,6 +109,11 @@ def bend_stencils(uv: np.ndarray, tri: np.ndarray,
     inside the clamp: ``2a/l`` too soft for overhang l); a diamond with one
     triangle clamped (the twist across the border) likewise counts twice its
     central value over its free half.
+
+    ``fit``: ``(n,)`` bool, the vertices whose fitted stencils are made
+    (None: all that need one).  For a piece of a mesh cut out around some
+    vertices (:mod:`cloth_lod_ros.sim.lod.merge_energy`): the cut's own
+    border needs fits nobody reads.
     """
     uv = np.asarray(uv, dtype=np.float64)
     tri = np.asarray(tri, dtype=np.int64)
@@ -198,6 +204,8 @@ def bend_stencils(uv: np.ndarray, tri: np.ndarray,
         np.add.at(G, c_vertex[cs], 2.0 * c_area[cs, None, None]
                   * vec[:, :, None] * vec[:, None, :])
     fitted = np.flatnonzero(np.abs(G).reshape(n, 9).sum(axis=1) > 0)
+    if fit is not None:
+        fitted = fitted[np.asarray(fit, dtype=bool)[fitted]]
     if len(fitted):
         # Fits see the free sheet and the clamp's border, not the clamp's
         # inside (flat: a fit across the curvature's jump would blur it).

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from cloth_lod_ros.sim import ClothSim
+from cloth_lod_ros.sim.runtime import compiled
 from cloth_lod_ros.sim.scene.config import load_scene, scene_from_dict
 from cloth_lod_ros.sim.physics.energies import elastic_energies
 from cloth_lod_ros.sim.physics.elements import precompute
@@ -33,11 +34,16 @@ def scene(max_level=5, initial_level=1, gravity=(0.0, 0.0, -9.81), **lod):
     })
 
 
-def hierarchy_energy(hierarchy, material, gravity) -> float:
-    """Elastic + kinetic + gravity energy (J) of the hierarchy's active mesh and state."""
+def hierarchy_energy(hierarchy, material, gravity, clamped=None) -> float:
+    """Elastic + kinetic + gravity energy (J) of the hierarchy's active mesh and
+    state; ``clamped``: ``(pool size,)`` bool, the particles clamping the bending
+    (physics.bending.bend_stencils), or None."""
     mesh, vids, _ = hierarchy.active_mesh()
     x, v, m = hierarchy.x[vids], hierarchy.v[vids], hierarchy.masses[vids]
-    e = elastic_energies(precompute(mesh), material, x)
+    elements = precompute(mesh)
+    if clamped is not None:
+        elements = replace(elements, clamped=clamped[vids])
+    e = elastic_energies(elements, material, x)
     return float(0.5 * np.sum(m * np.sum(v * v, axis=1)) - np.sum(m * (x @ gravity))
                  + e["stretch"] + e["shear"] + e["bend"])
 
@@ -84,7 +90,6 @@ def perturbed(seed, max_level=5, speed=0.3, offset=0.01):
     return sim
 
 
-@pytest.mark.xfail(strict=True, reason="issue 32: the bend part of merge_energy_change (and of the compiled check, check_kernels) is still the hinge sum, the bend energy is the stencils' (physics.bending)")
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_merge_energy_change_is_the_whole_mesh_energy_difference(seed):
     """The vectorised estimate equals the energy difference of the merged and
@@ -103,6 +108,47 @@ def test_merge_energy_change_is_the_whole_mesh_energy_difference(seed):
         actual = hierarchy_energy(merged, sim.scene.material, gravity) - start
         assert total == pytest.approx(actual, rel=1e-9, abs=1e-12)
     assert np.ptp(estimate.total) > 1e-3          # the merges really differ
+
+
+@pytest.mark.parametrize("kernels", [False, True])
+@pytest.mark.parametrize("seed", [0, 3])
+def test_merge_energy_change_next_to_a_clamp_is_the_whole_mesh_difference(seed, kernels):
+    """Held particles clamp the bending where they hold whole triangles: lines
+    become one-sided at the clamp's border, triangles inside carry no area and
+    fits see only its border.  Merges near such a patch (a corner of the
+    cloth), and one that makes a clamped triangle whole (its midpoint alone
+    free, its parent's corners held), change those stencils: the estimate is
+    still the whole-mesh difference with the same clamps, compiled or not."""
+    sim = perturbed(seed)
+    h, gravity = sim.hierarchy, np.asarray(sim.scene.simulation.gravity)
+    vertices, _ = h.split_vertices()
+    clamped = np.zeros(len(h.uv), dtype=bool)
+    clamped[sim.vertex_ids] = (h.uv[sim.vertex_ids] <= [0.5 + 1e-9, 0.5 + 1e-9]).all(axis=1)
+    corners = h.tri[np.maximum(h.vertex_parents[vertices], 0)]          # (k, 2, 3)
+    whole = (clamped[corners].all(axis=2) | (h.vertex_parents[vertices] < 0)).all(axis=1)
+    inside = vertices[whole & clamped[vertices]]
+    assert len(inside)
+    clamped[inside[0]] = False                    # merging it makes its parents whole clamps
+    elements = replace(sim.elements, clamped=clamped[sim.vertex_ids])
+    previous = compiled.use(kernels)
+    try:
+        estimate = merge_energy_change(h, elements, sim.vertex_ids, sim.triangle_ids, vertices,
+                                       sim.positions, sim.velocities, sim.masses,
+                                       sim.scene.material, gravity)
+        free = merge_energy_change(h, sim.elements, sim.vertex_ids, sim.triangle_ids, vertices,
+                                   sim.positions, sim.velocities, sim.masses, sim.scene.material,
+                                   gravity)
+    finally:
+        compiled.use(previous)
+    start = hierarchy_energy(h, sim.scene.material, gravity, clamped)
+    for vertex, total in zip(vertices, estimate.total):
+        merged = copy.deepcopy(h)
+        merged.apply(Merge(tuple(int(i) for i in h.vertex_edge[vertex])))
+        actual = hierarchy_energy(merged, sim.scene.material, gravity, clamped) - start
+        assert total == pytest.approx(actual, rel=1e-9, abs=1e-12), int(vertex)
+    # The clamp changed the answer: near it, and for the one made whole.
+    changed = ~np.isclose(estimate.total, free.total, rtol=1e-6, atol=0.0)
+    assert changed[vertices == inside[0]][0] and changed.sum() >= 3
 
 
 def sheared_diamond(speed, shift=0.005):
@@ -203,7 +249,6 @@ def test_every_merge_of_a_decision_adds_at_most_the_bound(seed):
     sim.hierarchy.check()
 
 
-@pytest.mark.xfail(strict=True, reason="issue 32: the bend part of merge_energy_change (and of the compiled check, check_kernels) is still the hinge sum, the bend energy is the stencils' (physics.bending)")
 def test_no_merge_of_a_long_hanging_run_adds_more_than_its_bound():
     """``hang_two_corners`` at level 6, 0.8 s from the horizontal start: every merge
     adds at most ``½ ρ A v²`` (v = 0.03 m/s: 0.09 µJ for a level-6 diamond, 5.6 µJ
@@ -211,8 +256,9 @@ def test_no_merge_of_a_long_hanging_run_adds_more_than_its_bound():
     momentum.  Before the energy test, 143 merges of the first 3 s added more
     than 1 µJ, the largest +0.96 mJ (t = 0.43 s, almost all stretch).  The
     merges start at t ≈ 0.45 s, when the fall's first swing slows; by 0.8 s
-    there are over 100 of them and the misses of issue 32 are all there (22 of
-    133 above their bound, the largest 195 times it at t = 0.667 s; over 3 s,
+    there are over 100 of them.  With the bend part of the estimate taken from
+    the hinge sum while the energy was the stencils' (issue 32), 22 of 133
+    were above their bound, the largest 195 times it at t = 0.667 s (over 3 s,
     48 of 518 and the same largest, at 3 times the cost)."""
     sim = ClothSim(load_scene("hang_two_corners"))
     assert sim.scene.lod.max_merge_speed == 0.03

@@ -192,23 +192,20 @@ def _perturbed(seed, offset, speed, half=False):
     return _SIMS[key]
 
 
-def _merge_energy(sim, vertices, hinge_angle=None, gravity=None):
+def _merge_energy(sim, vertices, gravity=None):
     gravity = sim.scene.simulation.gravity if gravity is None else gravity
     return merge_energy_change(sim.hierarchy, sim.elements, sim.vertex_ids, sim.triangle_ids,
                                vertices, sim.positions, sim.velocities, sim.masses,
-                               sim.scene.material, np.asarray(gravity, dtype=float),
-                               hinge_angle=hinge_angle)
+                               sim.scene.material, np.asarray(gravity, dtype=float))
 
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 3), offset=st.sampled_from([0.0, 1e-6, 0.01, 0.2]),
        speed=st.sampled_from([0.0, 0.3]), pick=st.integers(0, 2**32 - 1),
-       gravity=st.sampled_from([(0.0, 0.0, -9.81), (0.3, -9.7, 1.3), (0.0, 0.0, 0.0)]),
-       given_angles=st.booleans())
-def test_merge_energies_match_the_reference(seed, offset, speed, pick, gravity,
-                                                  given_angles):
-    """Every candidate or a random subset (interior and border diamonds), with
-    the angles given or computed, under any gravity."""
+       gravity=st.sampled_from([(0.0, 0.0, -9.81), (0.3, -9.7, 1.3), (0.0, 0.0, 0.0)]))
+def test_merge_energies_match_the_reference(seed, offset, speed, pick, gravity):
+    """Every candidate or a random subset (interior and border diamonds),
+    under any gravity."""
     sim = _perturbed(seed, offset, speed)
     vertices, _ = sim.hierarchy.split_vertices()
     assert np.any(sim.hierarchy.vertex_parents[vertices, 1] < 0)      # a border one
@@ -216,9 +213,7 @@ def test_merge_energies_match_the_reference(seed, offset, speed, pick, gravity,
     if pick % 2:
         vertices = np.sort(rng.choice(vertices, rng.integers(1, len(vertices) + 1),
                                       replace=False))
-    angles = hinges_kernels.hinge_angles(sim.positions, sim.elements.hinge_vertices) \
-        if given_angles else None
-    e0, e1 = _both(_merge_energy, sim, vertices, angles, gravity)
+    e0, e1 = _both(_merge_energy, sim, vertices, gravity)
     _energies_close(e1, e0, sim)
 
 
@@ -269,7 +264,7 @@ def test_a_candidate_outside_the_compact_mesh_goes_to_the_reference():
     ok = merge_energy_kernels.merge_energies(sim.hierarchy, sim.elements, missing, sim.triangle_ids,
                                              vertices[-1:] * 0 + sim.vertex_ids[-1], sim.positions,
                                              sim.velocities, sim.masses, sim.scene.material,
-                                             np.zeros(3), None)
+                                             np.zeros(3))
     assert ok is None
 
 
