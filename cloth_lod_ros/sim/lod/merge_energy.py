@@ -94,7 +94,7 @@ def merge_energy_change(hierarchy: Hierarchy48, elements: Elements, vertex_ids: 
         return MergeEnergy(np.zeros(0), np.zeros(0), np.zeros(0))
     compiled = merge_energy_kernels.merge_energies(hierarchy, elements, vertex_ids, triangle_ids,
                                                    vertices, x, v, masses, material, gravity)
-    if compiled is not None:        # one compiled pass, bitwise this reference's numbers
+    if compiled is not None:        # one compiled pass: this reference's numbers (bend part to rounding)
         return MergeEnergy(*compiled)
     h = hierarchy
     mid = np.searchsorted(vertex_ids, vertices)                      # compact m
